@@ -1,0 +1,29 @@
+"""lcpbench: benchmark suite and reference solvers for symmetric LCPs.
+
+Find ``x >= 0`` with ``w = A x + b >= 0`` and ``x . w = 0``, where every product
+with ``A`` is counted. Quick start::
+
+    import lcpbench
+    res = lcpbench.solve(A, b)                 # Mono-PQN, paper's stop rule, tol 1e-8
+    res = lcpbench.solve(lcp, solver="bi-pqn:low=p4", x0=x_prev)
+    print(res.summary())
+"""
+
+from .api import DEFAULT_SOLVER, run_solver, solve
+from .context import Budget, Monitor, SolverContext, StopSolver
+from .lcp import LCP
+from .operator import BudgetExhausted, Operator
+from .reference import Reference, reference
+from .registry import (get_problem, get_solver, parse_spec, problems, register_problem,
+                       register_solver, solvers)
+from .residuals import StopRule
+from .result import SolveResult, Status
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "LCP", "Operator", "Budget", "Monitor", "SolverContext", "StopSolver", "BudgetExhausted",
+    "StopRule", "SolveResult", "Status", "solve", "run_solver", "DEFAULT_SOLVER", "reference",
+    "Reference", "register_solver", "register_problem", "get_solver", "get_problem", "solvers",
+    "problems", "parse_spec", "__version__",
+]

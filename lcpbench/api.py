@@ -1,0 +1,209 @@
+"""``lcpbench.solve``: one solve, counted by the operators and verified by the framework."""
+
+from __future__ import annotations
+
+import traceback
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+
+from .context import Budget, Monitor, SolverContext, StopSolver
+from .lcp import LCP
+from .operator import BudgetExhausted
+from .registry import get_solver, make_params, parse_spec
+from .residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
+from .result import SolveResult, Status
+
+__all__ = ["solve", "run_solver", "DEFAULT_SOLVER"]
+
+#: The solver :func:`solve` uses when none is named.
+DEFAULT_SOLVER = "mono-pqn"
+
+
+def _resolve_solver(solver: str, params: dict):
+    name, raw = parse_spec(solver)
+    info = get_solver(name)
+    merged = dict(raw)
+    for k, v in params.items():
+        k2 = k.replace("-", "_")
+        if k2 in merged:
+            raise ValueError(f"parameter {k2!r} given both in {solver!r} and as a keyword")
+        merged[k2] = v
+    return info, make_params(name, info.params, merged)
+
+
+def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopRule] = "paper",
+               tol: float = 1e-8, budget: Optional[Budget] = None,
+               x0: Optional[np.ndarray] = None, state: Any = None,
+               verify_history: Optional[bool] = None, callback: Optional[Callable] = None,
+               params: Optional[dict] = None) -> SolveResult:
+    """Run one registered solver on ``lcp`` and verify the answer.
+
+    Parameters
+    ----------
+    lcp : LCP
+        The problem; its operators are copied with fresh counters, so the same
+        instance can be solved repeatedly.
+    solver : str
+        ``name[:key=value,...]``.
+    stop, tol : see :func:`lcpbench.residuals.make_stop_rule`.
+    budget : Budget, optional
+    x0 : ndarray, optional
+        Warm start (overrides ``lcp.x0``); negative entries are projected to 0.
+    state : object, optional
+        State returned by a previous solve of the same solver (``result.state``),
+        e.g. quasi-Newton memory for time stepping.
+    verify_history : bool, optional
+        Record the verified residual of every iterate (default: on for explicit
+        matrices, off for matrix-free operators where it would cost a PDE solve).
+    callback : callable, optional
+        ``callback(row, x)`` after each iterate.
+    params : dict, optional
+        Solver parameters (merged with those in the spec string).
+
+    Returns
+    -------
+    SolveResult
+        With the solver's claim, the operator-counted MVPs and E-MVPs, and the
+        framework's verified residuals (one uncounted product).
+    """
+    info, p = _resolve_solver(solver, params or {})
+    rule = make_stop_rule(stop, tol)
+    budget = budget or Budget()
+    run = lcp.fresh()
+    if x0 is not None:
+        x0 = np.asarray(x0, dtype=np.float64).reshape(-1)
+        if x0.shape != (run.n,):
+            raise ValueError(f"x0 has shape {x0.shape}; expected ({run.n},)")
+        if not np.all(np.isfinite(x0)):
+            raise ValueError("x0 has non-finite entries; pass a finite warm start")
+        x0 = np.maximum(x0, 0.0)
+    if verify_history is None:
+        verify_history = run.A.explicit
+    monitor = Monitor(verify=verify_history, callback=callback)
+    dense = run.dense() if (info.needs_dense and run.n) else None
+    ctx = SolverContext(run, rule, budget, monitor, x0=x0, dense=dense, state=state)
+    ctx.info["stop_rule"] = rule.kind
+
+    if run.n == 0:
+        z = np.zeros(0)
+        ctx.start()
+        ctx.report(z, z)
+        res = ctx.finish(z, z, Status.converged, "empty problem (n = 0)")
+    else:
+        ctx.start()
+        try:
+            res = info.func(ctx, p)
+            if not isinstance(res, SolveResult):
+                raise TypeError(f"solver {info.name!r} returned {type(res).__name__}, "
+                                "expected a SolveResult (use ctx.finish(x, w))")
+        except (BudgetExhausted, StopSolver) as exc:
+            res = _close_at_last(ctx, Status.max_iter if isinstance(exc, BudgetExhausted)
+                                 else (ctx.status or Status.max_iter),
+                                 str(exc) or ctx.message)
+        except Exception as exc:  # the sweep must never die for one solver
+            tb = traceback.format_exc(limit=3)
+            res = _close_at_last(ctx, Status.failed, f"{type(exc).__name__}: {exc}")
+            res.info["traceback"] = tb
+        finally:
+            ctx.detach()
+    res.time_s = ctx.elapsed()
+    return _complete(res, run, ctx, info, p, rule)
+
+
+def _close_at_last(ctx: SolverContext, status: Status, message: str) -> SolveResult:
+    if ctx.last is not None:
+        x, w = ctx.last
+    else:
+        x, w = ctx.x0, np.full(ctx.n, np.nan)
+    return SolveResult(x=x, w=w, status=status, message=message)
+
+
+def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule) -> SolveResult:
+    import dataclasses
+
+    x = np.asarray(res.x, dtype=np.float64).reshape(-1)
+    if x.shape != (run.n,):
+        res.status, res.message = Status.failed, f"solver returned x of shape {x.shape}"
+        x = ctx.x0.copy()
+    if not np.all(np.isfinite(x)):
+        if res.status != Status.failed:
+            res.status = Status.diverged
+            res.message = res.message or "non-finite solution"
+    res.x = x
+    res.mvps = int(run.A.count)
+    res.lofi_mvps = run.lofi_counts()
+    res.emvps = float(run.emvps())
+    res.mvp_time_s = float(sum(op.seconds for op in run.operators().values()))
+    res.iterations = ctx.iterations
+    res.history = ctx.monitor.frame()
+    res.claimed_kkt_abs = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
+    res.threshold = rule.threshold(run.b)
+    if np.all(np.isfinite(x)):
+        res.verified = all_residuals(x, run.residual_w(x), run.b)
+    else:
+        res.verified = {"kkt_abs": float("nan")}
+    res.solved = bool(res.verified["kkt_abs"] <= res.threshold)
+    res.solver = info.name
+    res.params = dataclasses.asdict(params)
+    res.mvp_only = info.mvp_only
+    res.info = {**ctx.info, **res.info}
+    return res
+
+
+def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
+          stop: Union[str, StopRule] = "paper", x0=None, max_emvps: float = 5000.0,
+          max_seconds: Optional[float] = None, max_iter: int = 5000, low: Optional[dict] = None,
+          state: Any = None, callback: Optional[Callable] = None, **params) -> SolveResult:
+    """Solve the LCP ``0 <= x _|_ A x + b >= 0``.
+
+    Parameters
+    ----------
+    A_or_lcp : LCP, ndarray, sparse matrix, LinearOperator or Operator
+        The matrix (symmetric positive semidefinite) or a ready :class:`LCP`.
+    b : array_like, optional
+        Required unless an LCP is given.
+    solver : str
+        Registered solver, optionally with parameters: ``"bi-pqn:low=p4"``.
+        ``lcpbench list`` shows them all.
+    tol : float
+        Tolerance of the stop rule.
+    stop : {"paper", "kkt"} or StopRule
+        ``paper``: absolute or relative KKT error below tol (eq. kkt-error);
+        ``kkt``: ``||min(x, Ax+b)|| <= tol (1 + ||b||)``.
+    x0 : array_like, optional
+        Warm start (e.g. the previous time step's forces).
+    max_emvps, max_seconds, max_iter : budget of the solve.
+    low : dict, optional
+        Low-fidelity operators by name (only when ``A_or_lcp`` is a matrix).
+    state : object, optional
+        ``result.state`` of the previous solve (quasi-Newton memory for time
+        stepping; solvers that keep none ignore it).
+    callback : callable, optional
+        ``callback(row, x)`` after each iterate.
+    **params
+        Solver parameters (checked against the solver's parameter dataclass).
+
+    Returns
+    -------
+    SolveResult
+
+    Examples
+    --------
+    >>> import numpy as np, lcpbench
+    >>> A = np.array([[2.0, 1.0], [1.0, 2.0]]); b = np.array([-1.0, 1.0])
+    >>> res = lcpbench.solve(A, b, solver="bb-pgd")
+    >>> res.status.value, np.round(res.x, 6).tolist()
+    ('converged', [0.5, 0.0])
+    """
+    if isinstance(A_or_lcp, LCP):
+        if b is not None or low is not None:
+            raise ValueError("pass b and low inside the LCP, not beside it")
+        lcp = A_or_lcp
+    else:
+        if b is None:
+            raise ValueError("b is required when A is given as a matrix or operator")
+        lcp = LCP(A_or_lcp, b, low=low or {})
+    budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds, max_iter=max_iter)
+    return run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, x0=x0, state=state,
+                      callback=callback, params=params)

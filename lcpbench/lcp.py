@@ -1,0 +1,218 @@
+"""The LCP model: find x >= 0 with w = A x + b >= 0 and x . w = 0."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Optional
+
+import numpy as np
+import scipy.sparse as sp
+
+from .operator import Operator, apply_uncounted, as_operator, dense_uncounted
+
+__all__ = ["LCP", "SYMMETRY_RTOL"]
+
+#: Relative tolerance of the symmetry check on explicit matrices:
+#: ``max|A - A'| <= SYMMETRY_RTOL * max|A|``. The live BIM mobility is only
+#: symmetric to ~1e-3 (DESIGN.md), which is why its problem plugin symmetrises
+#: explicitly before building an LCP.
+SYMMETRY_RTOL = 1e-10
+
+
+def _check_explicit(name: str, M, n: int, symmetric_rtol: float, psd: bool = True) -> None:
+    dense = M.toarray() if sp.issparse(M) else M
+    if not np.all(np.isfinite(dense)):
+        bad = np.argwhere(~np.isfinite(dense))[0]
+        raise ValueError(f"LCP field {name}: entry {tuple(int(i) for i in bad)} is "
+                         f"{dense[tuple(bad)]}; all entries must be finite")
+    scale = float(np.max(np.abs(dense))) if dense.size else 0.0
+    asym = float(np.max(np.abs(dense - dense.T))) if dense.size else 0.0
+    if asym > symmetric_rtol * max(scale, np.finfo(float).tiny):
+        raise ValueError(
+            f"LCP field {name}: matrix is not symmetric (max|A-A'| = {asym:.3g}, "
+            f"{asym / scale:.3g} relative > {symmetric_rtol:g}); symmetrise it with "
+            "(A + A.T) / 2 or pass symmetric_rtol= to accept it")
+    if psd and 0 < n <= 2000:
+        # Negative definite / indefinite detection where it is cheap.
+        lam_min = float(np.linalg.eigvalsh((dense + dense.T) / 2)[0])
+        if lam_min < -1e-8 * max(scale, 1.0) * n:
+            raise ValueError(
+                f"LCP field {name}: matrix is not positive semidefinite (smallest eigenvalue "
+                f"{lam_min:.3g}); the symmetric LCP needs A >= 0. Pass psd_check=False to "
+                "build it anyway (e.g. for an indefinite low-fidelity model)")
+
+
+@dataclass
+class LCP:
+    """A symmetric linear complementarity problem ``0 <= x  _|_  A x + b >= 0``.
+
+    Parameters
+    ----------
+    A : Operator, ndarray, scipy sparse matrix, LinearOperator, or callable
+        The high-fidelity matrix (symmetric positive semidefinite). It is wrapped
+        in a counted :class:`~lcpbench.Operator` named ``"high"``.
+    b : array_like, shape (n,)
+    x0 : array_like, optional
+        Warm start (non-negative). Solvers start from ``x0`` when given, else 0.
+    low : mapping of str to operator, optional
+        Low-fidelity operators by name (e.g. ``{"p4": ..., "rpy": ...}``); their
+        ``cost`` (seconds per MVP) converts their products into E-MVPs.
+    name : str
+        Instance name (problem family and id).
+    meta : dict
+        Free-form metadata (step, M, p, eps_gmres, seed, ...).
+    reference : mapping, optional
+        A stored reference solution (``x``, ``w``, ``objective``), if known.
+    symmetric_rtol : float
+        Relative tolerance of the symmetry check for explicit matrices
+        (default :data:`SYMMETRY_RTOL`).
+    psd_check : bool
+        Check positive semidefiniteness of explicit matrices up to n = 2000
+        (an eigenvalue computation). Low-fidelity operators are never checked
+        for definiteness: an indefinite model is a legitimate test case.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Naming the field that is wrong and how to fix it.
+    """
+
+    A: Any
+    b: Any
+    x0: Any = None
+    low: Mapping[str, Any] = field(default_factory=dict)
+    name: str = "lcp"
+    meta: dict = field(default_factory=dict)
+    reference: Optional[Mapping[str, Any]] = None
+    symmetric_rtol: float = SYMMETRY_RTOL
+    psd_check: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.A, (list, tuple)):
+            self.A = np.asarray(self.A)
+        if isinstance(self.A, np.ndarray) and self.A.dtype == object:
+            raise TypeError("LCP field A: object array; pass a numeric float64 matrix")
+        self.A = as_operator(self.A, name="high")
+        n, m = self.A.shape
+        if n != m:
+            raise ValueError(f"LCP field A: matrix must be square, got shape {self.A.shape}; "
+                             "an LCP needs an (n, n) matrix")
+        b = np.asarray(self.b)
+        if b.dtype == object or not (np.issubdtype(b.dtype, np.number) or b.dtype == bool):
+            raise TypeError(f"LCP field b: dtype {b.dtype} is not numeric; pass a float64 vector")
+        if np.iscomplexobj(b):
+            raise TypeError("LCP field b: complex values; the LCP is real")
+        b = b.astype(np.float64).reshape(-1) if b.ndim <= 1 or 1 in b.shape else b
+        if b.ndim != 1:
+            raise ValueError(f"LCP field b: expected a vector, got shape {np.shape(self.b)}")
+        if b.shape[0] != n:
+            raise ValueError(f"LCP field b: length {b.shape[0]} does not match A of shape "
+                             f"{self.A.shape}; b must have n = {n} entries")
+        if not np.all(np.isfinite(b)):
+            i = int(np.argmax(~np.isfinite(b)))
+            raise ValueError(f"LCP field b: entry {i} is {b[i]}; all entries must be finite")
+        self.b = b
+        if self.A.explicit:
+            _check_explicit("A", self.A._impl, n, self.symmetric_rtol, psd=self.psd_check)
+        if self.x0 is not None:
+            x0 = np.asarray(self.x0, dtype=np.float64).reshape(-1)
+            if x0.shape[0] != n:
+                raise ValueError(f"LCP field x0: length {x0.shape[0]} does not match n = {n}")
+            if not np.all(np.isfinite(x0)):
+                raise ValueError("LCP field x0: non-finite entries; pass a finite warm start")
+            if np.any(x0 < 0):
+                raise ValueError("LCP field x0: negative entries; a warm start must satisfy "
+                                 "x0 >= 0 (project it with np.maximum(x0, 0))")
+            self.x0 = x0
+        low = {}
+        for key, op in dict(self.low or {}).items():
+            op = as_operator(op if not isinstance(op, (list, tuple)) else np.asarray(op),
+                             name=str(key))
+            if isinstance(op, Operator) and op.name != key:
+                op = Operator(op, name=str(key))
+            if op.shape != (n, n):
+                raise ValueError(f"LCP field low[{key!r}]: shape {op.shape} does not match "
+                                 f"A of shape {(n, n)}")
+            if op.explicit:
+                _check_explicit(f"low[{key!r}]", op._impl, n, self.symmetric_rtol, psd=False)
+            low[str(key)] = op
+        self.low = low
+        self.meta = dict(self.meta or {})
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def n(self) -> int:
+        """Number of contacts (unknowns)."""
+        return int(self.A.shape[0])
+
+    def fresh(self) -> "LCP":
+        """A copy whose operators share the matrices but have zeroed counters."""
+        new = object.__new__(LCP)
+        new.__dict__.update(self.__dict__)
+        new.A = self.A.copy()
+        new.low = {k: v.copy() for k, v in self.low.items()}
+        new.meta = dict(self.meta)
+        return new
+
+    def operators(self) -> dict:
+        """All operators of the instance: ``{"high": A, **low}``."""
+        return {"high": self.A, **self.low}
+
+    def emvps(self) -> float:
+        """Effective MVPs so far: ``sum(count * cost) / cost_high`` over all operators.
+
+        A low-fidelity operator with products but no known cost is an error,
+        because its products cannot be converted honestly.
+        """
+        total = float(self.A.count)
+        if not any(op.count for op in self.low.values()):
+            return total
+        c_high = self.high_cost()
+        for name, op in self.low.items():
+            if op.count:
+                c = op.cost
+                if c is None:
+                    raise ValueError(f"low-fidelity operator {name!r} has no cost; declare "
+                                     "cost= seconds per MVP")
+                total += op.count * c / c_high
+        return total
+
+    def high_cost(self) -> float:
+        """Seconds per high-fidelity MVP: declared, measured, or calibrated once.
+
+        Calibration times one uncounted product; it is used only when the
+        solve has used low-fidelity products and no high-fidelity timing exists.
+        """
+        c = self.A.cost
+        if c is None:
+            import time
+
+            v = np.ones(self.n)
+            reps = 0
+            t0 = time.perf_counter()
+            while True:
+                apply_uncounted(self.A, v)
+                reps += 1
+                el = time.perf_counter() - t0
+                if el > 0.01 or reps >= 100:
+                    break
+            c = el / reps
+            self.A._declared_cost = c
+        return c
+
+    def lofi_counts(self) -> dict:
+        """Products per low-fidelity operator."""
+        return {k: int(v.count) for k, v in self.low.items()}
+
+    def residual_w(self, x: np.ndarray) -> np.ndarray:
+        """``A x + b`` by one uncounted product (framework verification)."""
+        if self.n == 0:
+            return np.zeros(0)
+        return apply_uncounted(self.A, x) + self.b
+
+    def dense(self) -> np.ndarray:
+        """The high-fidelity matrix as dense (uncounted; framework/reference use)."""
+        return dense_uncounted(self.A)
+
+    def __repr__(self) -> str:
+        return f"<LCP {self.name!r} n={self.n} low={list(self.low)}>"

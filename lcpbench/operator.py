@@ -1,0 +1,227 @@
+"""Counted linear operators: every product a solver asks for is recorded.
+
+The cost that matters for the LCPs of collision resolution is the number of
+matrix-vector products (MVPs), because every product is a Stokes mobility solve.
+:class:`Operator` is the only way a solver touches a matrix: it subclasses
+:class:`scipy.sparse.linalg.LinearOperator`, so it plugs into scipy's Krylov
+solvers unchanged, and every public way of applying it (``matvec``, ``matmat``,
+``rmatvec``, ``@``, ``dot``, ``__call__``, ``.T``/``.H``) goes through the same
+counting path.  A block product with ``k`` columns counts ``k`` MVPs.
+
+The framework (never a solver) applies an operator without counting through
+:func:`apply_uncounted`, to verify answers independently.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Optional
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, aslinearoperator
+
+__all__ = ["Operator", "BudgetExhausted", "apply_uncounted", "as_operator"]
+
+
+class BudgetExhausted(RuntimeError):
+    """Raised by a counted product that would exceed the solve's budget.
+
+    The framework catches it and closes the solve with status ``max_iter`` and
+    the last iterate the solver reported, so every solver honours the budget even
+    when the product is requested deep inside a library (e.g. scipy's L-BFGS-B).
+    """
+
+
+def _explicit_matrix(A) -> bool:
+    return isinstance(A, np.ndarray) or sp.issparse(A)
+
+
+class Operator(LinearOperator):
+    """A linear operator that counts and times every product.
+
+    Parameters
+    ----------
+    A : ndarray, scipy sparse matrix, LinearOperator, or callable
+        The operator. A callable must map a 1-D vector to a 1-D vector and needs
+        ``shape``.
+    shape : tuple of int, optional
+        Required when ``A`` is a callable.
+    cost : float, optional
+        Declared seconds per MVP (stored sets declare the cost measured when they
+        were generated). When omitted the cost is the measured mean wall time per
+        product of this operator.
+    name : str
+        Label used in results (``"high"`` for the high-fidelity operator, the
+        fidelity name such as ``"p4"`` for low-fidelity ones).
+
+    Notes
+    -----
+    ``count`` is the number of MVPs (columns) applied, ``seconds`` the wall time
+    spent in products. :meth:`copy` gives an operator that shares the underlying
+    matrix and declared cost but starts with fresh counters; the framework
+    makes one per solve so that solves never share counts.
+    """
+
+    def __init__(self, A, shape: Optional[tuple] = None, *, cost: Optional[float] = None,
+                 name: str = "high", dtype=np.float64):
+        if isinstance(A, Operator):
+            impl = A._impl
+            shape = A.shape
+            cost = A._declared_cost if cost is None else cost
+            self._explicit = A._explicit
+        elif _explicit_matrix(A):
+            arr = A
+            if isinstance(arr, np.ndarray):
+                if arr.ndim != 2:
+                    raise ValueError(f"operator {name!r}: expected a 2-D matrix, got an array "
+                                     f"with {arr.ndim} dimension(s); pass an (n, n) matrix")
+                if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+                    raise TypeError(f"operator {name!r}: matrix dtype {arr.dtype} is not real; "
+                                    "pass a real float64 matrix (e.g. A.astype(float))")
+                arr = np.asarray(arr, dtype=np.float64)
+            else:
+                if np.iscomplexobj(arr.data) or not np.issubdtype(arr.dtype, np.number):
+                    raise TypeError(f"operator {name!r}: sparse dtype {arr.dtype} is not real; "
+                                    "pass a real float64 matrix")
+                arr = sp.csr_matrix(arr, dtype=np.float64)
+            impl = arr
+            shape = arr.shape
+            self._explicit = True
+        elif isinstance(A, LinearOperator):
+            impl = A
+            shape = A.shape
+            self._explicit = False
+        elif callable(A):
+            if shape is None:
+                raise ValueError(f"operator {name!r}: a matvec callable needs shape=(n, n)")
+            impl = LinearOperator(tuple(shape), matvec=A, dtype=np.float64)
+            self._explicit = False
+        else:
+            raise TypeError(f"operator {name!r}: cannot make an operator from {type(A).__name__}; "
+                            "pass an ndarray, a scipy sparse matrix, a LinearOperator, "
+                            "or a callable with shape=")
+        shape = tuple(int(s) for s in shape)
+        if len(shape) != 2:
+            raise ValueError(f"operator {name!r}: shape must be (n, n), got {shape}")
+        super().__init__(dtype=np.dtype(dtype), shape=shape)
+        self._impl = impl
+        if cost is not None:
+            cost = float(cost)
+            if not np.isfinite(cost) or cost <= 0:
+                raise ValueError(f"operator {name!r}: cost must be a positive number of seconds "
+                                 f"per MVP, got {cost}")
+        self._declared_cost = cost
+        self.name = name
+        self.count = 0
+        self.seconds = 0.0
+        self.calls = 0
+        self._guard: Optional[Callable[["Operator", int], None]] = None
+
+    # ------------------------------------------------------------------ counting
+    def _apply(self, X: np.ndarray) -> np.ndarray:
+        k = 1 if X.ndim == 1 else X.shape[1]
+        if self._guard is not None:
+            self._guard(self, k)
+        t0 = time.perf_counter()
+        Y = _raw_apply(self._impl, X)
+        self.seconds += time.perf_counter() - t0
+        self.count += k
+        self.calls += 1
+        return Y
+
+    def _matvec(self, x):
+        x = np.asarray(x, dtype=np.float64)
+        return self._apply(x.reshape(-1)).reshape(x.shape)
+
+    def _matmat(self, X):
+        return self._apply(np.asarray(X, dtype=np.float64))
+
+    # The LCP matrices are symmetric: the adjoint is the operator itself, counted.
+    def _rmatvec(self, x):
+        return self._matvec(x)
+
+    def _rmatmat(self, X):
+        return self._matmat(X)
+
+    def _adjoint(self):
+        return self
+
+    def _transpose(self):
+        return self
+
+    # ------------------------------------------------------------------ cost
+    @property
+    def explicit(self) -> bool:
+        """True when the operator wraps an explicit (dense or sparse) matrix."""
+        return self._explicit
+
+    @property
+    def declared_cost(self) -> Optional[float]:
+        """Declared seconds per MVP, or None."""
+        return self._declared_cost
+
+    @property
+    def measured_cost(self) -> Optional[float]:
+        """Mean measured seconds per MVP so far, or None before the first product."""
+        return self.seconds / self.count if self.count else None
+
+    @property
+    def cost(self) -> Optional[float]:
+        """Seconds per MVP: declared if given, else measured (None if unknown)."""
+        return self._declared_cost if self._declared_cost is not None else self.measured_cost
+
+    def copy(self, name: Optional[str] = None) -> "Operator":
+        """A new operator on the same matrix and declared cost, with zeroed counters."""
+        op = Operator(self, name=self.name if name is None else name)
+        return op
+
+    def __repr__(self) -> str:
+        kind = type(self._impl).__name__
+        return (f"<Operator {self.name!r} {self.shape[0]}x{self.shape[1]} ({kind}), "
+                f"count={self.count}, cost={self.cost}>")
+
+
+def _raw_apply(impl, X: np.ndarray) -> np.ndarray:
+    if isinstance(impl, np.ndarray):
+        return impl @ X
+    if sp.issparse(impl):
+        return np.asarray(impl @ X)
+    if X.ndim == 1:
+        return np.asarray(impl.matvec(X)).reshape(-1)
+    return np.asarray(impl.matmat(X))
+
+
+def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:
+    """Apply ``op`` without counting or timing: for the framework's verification only.
+
+    Solvers must never call this; the test-suite checks that no solver module
+    imports it.
+    """
+    return _raw_apply(op._impl, np.asarray(X, dtype=np.float64))
+
+
+def dense_uncounted(op: Operator) -> np.ndarray:
+    """The operator as a dense matrix, formed without counting (framework only).
+
+    Explicit matrices are returned directly (densified); other operators are
+    applied to the columns of the identity.
+    """
+    impl = op._impl
+    if isinstance(impl, np.ndarray):
+        return impl.copy()
+    if sp.issparse(impl):
+        return impl.toarray()
+    return apply_uncounted(op, np.eye(op.shape[1]))
+
+
+def as_operator(A, *, name: str = "high", cost: Optional[float] = None) -> Operator:
+    """Wrap ``A`` in a counted :class:`Operator` (no-op copy semantics for Operators)."""
+    if isinstance(A, Operator):
+        return A
+    if isinstance(A, LinearOperator) or _explicit_matrix(A) or callable(A):
+        return Operator(A, cost=cost, name=name)
+    try:
+        return Operator(aslinearoperator(A), cost=cost, name=name)
+    except Exception as exc:  # pragma: no cover - message only
+        raise TypeError(f"cannot make an operator from {type(A).__name__}: {exc}") from None

@@ -1,0 +1,113 @@
+"""Consensus reference solutions from independent QP solvers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .lcp import LCP
+from .qp import polish_active_set, solve_nonneg_qp
+from .residuals import kkt_abs, objective
+
+__all__ = ["Reference", "reference", "AGREE_RTOL"]
+
+#: Two backends agree when their w differ by at most this, relative to max(1, ||w||).
+AGREE_RTOL = 1e-8
+
+
+@dataclass
+class Reference:
+    """A reference solution of an LCP.
+
+    Attributes
+    ----------
+    x, w : ndarray
+        Solution and ``A x + b`` of the most accurate agreeing backend.
+    objective : float
+    accepted : bool
+        True when at least two backends agree on ``w`` to :data:`AGREE_RTOL`.
+    solvers : list of str
+        Backends in the agreeing group (or all that returned, if none agree).
+    kkt_abs : float
+        ``||min(x, w)||`` of the returned solution.
+    disagreement : float
+        Largest relative difference of ``w`` among the agreeing group, or the
+        smallest pairwise difference when no two agree.
+    details : dict
+        Per-backend message, residual and w.
+    """
+
+    x: np.ndarray
+    w: np.ndarray
+    objective: float
+    accepted: bool
+    solvers: list
+    kkt_abs: float
+    disagreement: float
+    details: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"x": self.x, "w": self.w, "objective": self.objective,
+                "accepted": self.accepted, "solvers": list(self.solvers),
+                "kkt_abs": self.kkt_abs, "disagreement": self.disagreement}
+
+
+def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
+    return float(np.linalg.norm(w1 - w2) / max(1.0, np.linalg.norm(w1), np.linalg.norm(w2)))
+
+
+def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp"),
+              tol: float = 1e-12, polish: bool = True, rtol: float = AGREE_RTOL) -> Reference:
+    """Ground truth for ``lcp`` from the reference QP solvers.
+
+    Each backend solves ``min 1/2 x'Ax + b'x, x >= 0`` on the dense matrix
+    (formed once, uncounted) at tolerance ``tol``; each answer is refined by one
+    active-set polish step (:func:`lcpbench.qp.polish_active_set`) when that
+    lowers its residual. The reference is *accepted* when at least two
+    backends agree on ``w`` (compared rather than ``x``, which is not unique
+    when A is singular) to ``rtol`` relative; otherwise the disagreement is
+    recorded and ``accepted`` is False.
+    """
+    A = lcp.dense()
+    b = lcp.b
+    n = lcp.n
+    if n == 0:
+        z = np.zeros(0)
+        return Reference(z, z, 0.0, True, list(backends), 0.0, 0.0)
+    sols = {}
+    details = {}
+    for name in backends:
+        try:
+            x, msg = solve_nonneg_qp(A, b, name, tol)
+        except Exception as exc:  # a backend crash is recorded, not fatal
+            x, msg = None, f"{name}: {type(exc).__name__}: {exc}"
+        if x is not None and polish:
+            x = polish_active_set(A, b, x)
+        if x is not None:
+            w = A @ x + b
+            sols[name] = (x, w, kkt_abs(x, w))
+        details[name] = {"message": msg,
+                         "kkt_abs": sols[name][2] if name in sols else float("nan")}
+    if not sols:
+        raise RuntimeError(f"no reference backend solved {lcp.name!r}: "
+                           + "; ".join(d["message"] for d in details.values()))
+    names = list(sols)
+    best_group, best_spread = [names[0]], float("inf")
+    for i, a in enumerate(names):
+        group = [a] + [c for c in names if c != a and _rel(sols[a][1], sols[c][1]) <= rtol]
+        spread = max((_rel(sols[p][1], sols[q][1]) for p in group for q in group if p < q),
+                     default=float("inf"))
+        if len(group) > len(best_group) or (len(group) == len(best_group) and spread < best_spread):
+            best_group, best_spread = group, spread
+    accepted = len(best_group) >= 2
+    if not accepted:
+        pair = [(_rel(sols[p][1], sols[q][1])) for p in names for q in names if p < q]
+        best_spread = min(pair) if pair else float("inf")
+        best_group = names
+    pick = min(best_group, key=lambda k: sols[k][2])
+    x, w, res = sols[pick]
+    return Reference(x=x, w=w, objective=objective(x, w, b), accepted=accepted,
+                     solvers=sorted(best_group), kkt_abs=res, disagreement=best_spread,
+                     details=details)

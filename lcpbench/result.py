@@ -1,0 +1,122 @@
+"""Results of a solve: the solver's claim beside the framework's verification."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["Status", "SolveResult", "HISTORY_COLUMNS"]
+
+#: Columns of :attr:`SolveResult.history` (one row per iterate).
+HISTORY_COLUMNS = ["iter", "mvps", "lofi_mvps", "emvps", "kkt_abs", "kkt_rel", "objective",
+                   "time_s", "kkt_abs_verified"]
+
+
+class Status(str, enum.Enum):
+    """How a solve ended.
+
+    ``converged``: the stop rule's absolute test held at the solver's own ``w``.
+    ``max_iter``: the iteration cap or the budget (E-MVPs, seconds) ran out.
+    ``stagnated``: the paper's relative stagnation measure fell below tol while
+    the absolute residual did not, or the method could make no more progress.
+    ``diverged``: the iterate or residual became non-finite or blew up.
+    ``failed``: the solver raised, or a backend reported failure.
+    """
+
+    converged = "converged"
+    max_iter = "max_iter"
+    stagnated = "stagnated"
+    diverged = "diverged"
+    failed = "failed"
+
+    def __str__(self) -> str:  # pragma: no cover - cosmetic
+        return self.value
+
+
+@dataclass
+class SolveResult:
+    """Outcome of one solve.
+
+    Attributes
+    ----------
+    x, w : ndarray
+        The solution and ``A x + b`` as the solver believes it.
+    status : Status
+        The solver's claim (see :class:`Status`).
+    message : str
+    mvps : int
+        High-fidelity MVPs counted by the operator.
+    lofi_mvps : dict
+        MVPs per low-fidelity operator.
+    emvps : float
+        Effective MVPs: ``sum(count * cost) / cost_high``.
+    iterations : int
+        Iterates reported to the monitor, minus one (the initial point).
+    time_s : float
+        Solver wall time, excluding the monitor's bookkeeping.
+    mvp_time_s : float
+        Seconds spent inside counted products.
+    history : pandas.DataFrame
+        One row per iterate, columns :data:`HISTORY_COLUMNS`.
+    claimed_kkt_abs : float
+        ``||min(x, w)||`` at the solver's own ``w``.
+    verified : dict
+        The framework's residuals at ``w = A x + b`` recomputed by one uncounted
+        product (keys of :func:`lcpbench.residuals.all_residuals`).
+    solved : bool
+        True only if the verified residual meets the stop rule's absolute bound.
+    solver, params : str, dict
+        Solver name and its parameters.
+    mvp_only : bool
+        False for solvers that needed the dense matrix.
+    info : dict
+        Solver-specific counters (e.g. prox Newton fallbacks, model fallbacks).
+    """
+
+    x: np.ndarray
+    w: np.ndarray
+    status: Status
+    message: str = ""
+    mvps: int = 0
+    lofi_mvps: dict = field(default_factory=dict)
+    emvps: float = 0.0
+    iterations: int = 0
+    time_s: float = 0.0
+    mvp_time_s: float = 0.0
+    history: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=HISTORY_COLUMNS))
+    claimed_kkt_abs: float = float("nan")
+    verified: dict = field(default_factory=dict)
+    solved: bool = False
+    threshold: float = float("nan")
+    solver: str = ""
+    params: dict = field(default_factory=dict)
+    mvp_only: bool = True
+    info: dict = field(default_factory=dict)
+    state: Any = None
+
+    @property
+    def verified_kkt_abs(self) -> float:
+        """The framework's ``||min(x, Ax+b)||_2``."""
+        return float(self.verified.get("kkt_abs", float("nan")))
+
+    @property
+    def false_convergence(self) -> bool:
+        """A claimed convergence whose verified residual exceeds 10x the bound."""
+        return (self.status == Status.converged
+                and not (self.verified_kkt_abs <= 10 * self.threshold))
+
+    def summary(self) -> str:
+        """One line: solver, status, counts and residuals."""
+        lo = ", ".join(f"{k}={v}" for k, v in self.lofi_mvps.items() if v)
+        lo = f" (+ low {lo})" if lo else ""
+        return (f"{self.solver}: {self.status.value} after {self.iterations} it, "
+                f"{self.mvps} MVPs{lo}, {self.emvps:.2f} E-MVPs, "
+                f"claimed {self.claimed_kkt_abs:.2e}, verified {self.verified_kkt_abs:.2e}, "
+                f"{'solved' if self.solved else 'NOT solved'}, {self.time_s:.3g} s")
+
+    def __repr__(self) -> str:
+        return f"<SolveResult {self.summary()}>"

@@ -1,0 +1,1 @@
+"""Problem family module (being written)."""

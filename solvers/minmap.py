@@ -1,0 +1,1 @@
+"""Solver family module (being written)."""
