@@ -6,7 +6,10 @@ matrix-vector products (MVPs), because every product is a Stokes mobility solve.
 :class:`scipy.sparse.linalg.LinearOperator`, so it plugs into scipy's Krylov
 solvers unchanged, and every public way of applying it (``matvec``, ``matmat``,
 ``rmatvec``, ``@``, ``dot``, ``__call__``, ``.T``/``.H``) goes through the same
-counting path.  A block product with ``k`` columns counts ``k`` MVPs.
+counting path.  A block product with ``k`` columns counts ``k`` MVPs. A product
+with an all-zero vector (column) is not counted: ``A 0 = 0`` needs no PDE
+solve, so a cold start ``x0 = 0`` gets its gradient ``b`` for free, for every
+solver alike.
 
 The framework (never a solver) applies an operator without counting through
 :func:`apply_uncounted`, to verify answers independently.
@@ -120,7 +123,12 @@ class Operator(LinearOperator):
 
     # ------------------------------------------------------------------ counting
     def _apply(self, X: np.ndarray) -> np.ndarray:
-        k = 1 if X.ndim == 1 else X.shape[1]
+        # A zero column costs nothing: A @ 0 = 0 exactly for any linear operator,
+        # so no PDE solve is needed (e.g. the gradient b at the cold start x0 = 0).
+        nonzero = np.any(X != 0, axis=0) if X.ndim == 2 else np.any(X != 0)
+        k = int(np.count_nonzero(nonzero))
+        if k == 0:
+            return np.zeros(self.shape[0] if X.ndim == 1 else (self.shape[0], X.shape[1]))
         if self._guard is not None:
             self._guard(self, k)
         t0 = time.perf_counter()

@@ -1,0 +1,196 @@
+"""BFGS Hessian models in the form ``B = B0 + U U' - V V'`` (unrolled storage).
+
+The BFGS update ``B+ = B + y y'/(y's) - (B s)(B s)'/(s'B s)`` adds the column
+``y / sqrt(y's)`` to ``U`` and ``B s / sqrt(s'B s)`` to ``V`` (Nocedal & Wright,
+2006, sec. 6.1 and 7.2 "unrolling"), which is the diagonal-plus-low-rank form the
+weighted prox (:mod:`lcpbench.prox`) needs. Two initial models are used by the
+PQN solvers:
+
+* :class:`DiagonalBFGS` — ``B0 = D`` diagonal (``d * I``): the Mono-PQN model, with
+  ``H = B^-1`` applied by the two-loop recursion in O(n r).
+* :class:`OperatorBFGS` — ``B0`` a (low-fidelity) operator: the Bi-PQN model
+  ``B = A_low + U U' - V V'`` (eq. bifi-qnapprox).
+
+Pairs with too little curvature (``y's <= curvature_tol * ||s|| ||y||``) are
+skipped, as in the authors' code, so ``B`` stays positive definite whenever
+``B0`` is.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+import numpy as np
+
+__all__ = ["DiagonalBFGS", "OperatorBFGS", "bb2_scale"]
+
+
+def bb2_scale(s: np.ndarray, y: np.ndarray) -> float:
+    """Barzilai-Borwein (BB2) step ``s'y / y'y`` (inverse curvature estimate)."""
+    yy = float(y @ y)
+    return float(s @ y) / yy if yy > 0 else 1.0
+
+
+def _accept(s: np.ndarray, y: np.ndarray, tol: float) -> bool:
+    sy = float(s @ y)
+    return np.isfinite(sy) and sy > tol * float(np.linalg.norm(s) * np.linalg.norm(y)) and sy > 0
+
+
+class DiagonalBFGS:
+    """BFGS model ``B = d I + U U' - V V'`` from stored secant pairs.
+
+    Parameters
+    ----------
+    n : int
+    memory : int or None
+        Number of pairs kept (oldest dropped first); None keeps all.
+    scaling : {"identity", "bb"}
+        ``identity``: ``d = 1`` (``H0 = I`` as in algorithm pqn). ``bb``:
+        ``d = 1 / (gamma * tau_bb2)`` from the newest pair, as the authors' code
+        (``h0 = gamma * s'y / y'y``, clipped to ``[tau_min, tau_max]``); ``d = 1``
+        before the first pair.
+    gamma : float
+        Damping of the BB scaling (authors' default 0.8).
+    curvature_tol : float
+        Pairs with ``y's <= curvature_tol ||s|| ||y||`` are skipped.
+    """
+
+    def __init__(self, n: int, memory: Optional[int] = None, scaling: str = "bb",
+                 gamma: float = 0.8, curvature_tol: float = 1e-12,
+                 tau_min: float = 1e-14, tau_max: float = 1e14):
+        if scaling not in ("identity", "bb"):
+            raise ValueError(f"scaling must be 'identity' or 'bb', got {scaling!r}")
+        self.n = n
+        self.memory = memory
+        self.scaling = scaling
+        self.gamma = gamma
+        self.curvature_tol = curvature_tol
+        self.tau_min, self.tau_max = tau_min, tau_max
+        self.S: list[np.ndarray] = []
+        self.Y: list[np.ndarray] = []
+        self.skipped = 0
+        self._factors: Optional[tuple] = None
+
+    # ------------------------------------------------------------------ pairs
+    def add_pair(self, s: np.ndarray, y: np.ndarray) -> bool:
+        """Store the secant pair ``(s, y)`` (``B s = y``); False if skipped."""
+        if not _accept(s, y, self.curvature_tol):
+            self.skipped += 1
+            return False
+        self.S.append(np.array(s, dtype=np.float64))
+        self.Y.append(np.array(y, dtype=np.float64))
+        if self.memory is not None and len(self.S) > self.memory:
+            self.S.pop(0)
+            self.Y.pop(0)
+            self._factors = None
+        elif self._factors is not None and self.scaling == "identity":
+            self._append_factor(self.S[-1], self.Y[-1])
+        else:
+            self._factors = None
+        return True
+
+    def set_pairs(self, S: list, Y: list) -> None:
+        """Replace the memory by the given pairs (curvature-checked, oldest first)."""
+        self.S, self.Y, self._factors = [], [], None
+        for s, y in zip(S, Y):
+            self.add_pair(s, y)
+
+    @property
+    def rank(self) -> int:
+        return len(self.S)
+
+    @property
+    def d(self) -> float:
+        """The diagonal scalar of ``B0``."""
+        if self.scaling == "identity" or not self.S:
+            return 1.0
+        tau = float(np.clip(bb2_scale(self.S[-1], self.Y[-1]), self.tau_min, self.tau_max))
+        return 1.0 / (self.gamma * tau)
+
+    # ------------------------------------------------------------------ B = d + UU' - VV'
+    def _append_factor(self, s, y):
+        d, U, V = self._factors
+        Bs = d * s + U @ (U.T @ s) - V @ (V.T @ s)
+        sBs = float(s @ Bs)
+        sy = float(s @ y)
+        if sBs <= 0 or sy <= 0:  # cannot happen in exact arithmetic with B PD
+            self._factors = None
+            return
+        U = np.column_stack([U, y / np.sqrt(sy)])
+        V = np.column_stack([V, Bs / np.sqrt(sBs)])
+        self._factors = (d, U, V)
+
+    def factors(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """``(d, U, V)`` with ``B = d I + U U' - V V'``; O(n r^2) when rebuilt."""
+        if self._factors is None or self._factors[0] != self.d:
+            self._factors = (self.d, np.zeros((self.n, 0)), np.zeros((self.n, 0)))
+            for s, y in zip(self.S, self.Y):
+                self._append_factor(s, y)
+                if self._factors is None:  # numerical breakdown: restart from d I
+                    self._factors = (self.d, np.zeros((self.n, 0)), np.zeros((self.n, 0)))
+                    break
+        return self._factors
+
+    def apply_B(self, v: np.ndarray) -> np.ndarray:
+        d, U, V = self.factors()
+        return d * v + U @ (U.T @ v) - V @ (V.T @ v)
+
+    def apply_H(self, g: np.ndarray) -> np.ndarray:
+        """``H g = B^-1 g`` by the two-loop recursion with ``H0 = I / d`` (O(n r))."""
+        q = np.array(g, dtype=np.float64)
+        rho = [1.0 / float(s @ y) for s, y in zip(self.S, self.Y)]
+        alpha = [0.0] * len(self.S)
+        for i in range(len(self.S) - 1, -1, -1):
+            alpha[i] = rho[i] * float(self.S[i] @ q)
+            q -= alpha[i] * self.Y[i]
+        r = q / self.d
+        for i in range(len(self.S)):
+            beta = rho[i] * float(self.Y[i] @ r)
+            r += (alpha[i] - beta) * self.S[i]
+        return r
+
+
+class OperatorBFGS:
+    """BFGS corrections of an operator: ``B = B0 + U U' - V V'`` (eq. bifi-qnapprox).
+
+    Parameters
+    ----------
+    apply_B0 : callable
+        Product with ``B0`` (a low-fidelity MVP, counted by its operator).
+    curvature_tol : float
+        Updates with too little curvature are skipped.
+    """
+
+    def __init__(self, apply_B0: Callable[[np.ndarray], np.ndarray], n: int,
+                 curvature_tol: float = 1e-12):
+        self.apply_B0 = apply_B0
+        self.n = n
+        self.U = np.zeros((n, 0))
+        self.V = np.zeros((n, 0))
+        self.curvature_tol = curvature_tol
+        self.skipped = 0
+
+    def correction(self, v: np.ndarray) -> np.ndarray:
+        """``(U U' - V V') v`` in O(n r), no product."""
+        return self.U @ (self.U.T @ v) - self.V @ (self.V.T @ v)
+
+    def apply(self, v: np.ndarray) -> np.ndarray:
+        """``B v``: one product with ``B0`` plus O(n r)."""
+        return self.apply_B0(v) + self.correction(v)
+
+    def update(self, s: np.ndarray, y: np.ndarray, Bs: np.ndarray):
+        """BFGS update with the secant pair ``(s, y = A s)`` and the known ``B s``.
+
+        Returns the new columns ``(u, v)`` (None if skipped): the caller uses them
+        to correct carried low-fidelity pairs, ``Y <- Y - (u u' - v v') S``.
+        """
+        sy = float(s @ y)
+        sBs = float(s @ Bs)
+        if not (_accept(s, y, self.curvature_tol) and sBs > 0):
+            self.skipped += 1
+            return None
+        u = y / np.sqrt(sy)
+        v = Bs / np.sqrt(sBs)
+        self.U = np.column_stack([self.U, u])
+        self.V = np.column_stack([self.V, v])
+        return u, v
