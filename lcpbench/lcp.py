@@ -137,6 +137,13 @@ class LCP:
                 _check_explicit(f"low[{key!r}]", op._impl, n, self.symmetric_rtol, psd=False)
             low[str(key)] = op
         self.low = low
+        declared = {k: op.declared_cost is not None for k, op in self.operators().items()}
+        if low and len(set(declared.values())) > 1:
+            have = ", ".join(k for k, v in declared.items() if v)
+            lack = ", ".join(k for k, v in declared.items() if not v)
+            raise ValueError(f"LCP field low: costs are declared for {have} but not for {lack}; "
+                             "E-MVPs compare costs, so declare cost= (seconds per MVP, or any "
+                             "common unit) on every operator, or on none to measure them all")
         self.meta = dict(self.meta or {})
 
     # ------------------------------------------------------------------ helpers

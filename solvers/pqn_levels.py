@@ -1,0 +1,395 @@
+"""The iteration machinery of the PQN solvers, one fidelity level at a time.
+
+A *level* minimises a convex (or, for a poor low-fidelity model, possibly
+non-convex) quadratic over ``z >= 0`` given only
+
+* ``apply(v)``: the product with its Hessian ``Q`` (a counted MVP of some
+  operator, or a low-fidelity product plus ``O(n r)`` low-rank corrections),
+* a start ``z0`` and the gradient ``G0`` there.
+
+The gradient is tracked by the recurrence ``G <- G + eta Q p`` so each
+iteration costs exactly one product with ``Q`` (section "Mono-PQN Step Size
+Selection", remark "Computing eta* requires no extra MVPs").
+
+* :func:`mono_level` is algorithm pqn (Mono-PQN) on that quadratic.
+* :func:`bi_level` is algorithm bpqn (Bi-PQN): its subproblem (eq.
+  pqnSubproblem) is solved by the next level down, which is :func:`mono_level`
+  for Bi-PQN and another :func:`bi_level` for the multi-fidelity chain.
+
+Levels exchange secant pairs as :class:`Pairs` (``S``, ``Y = Q S`` and, when
+the receiving level has an operator base ``B0``, the cached ``B0 S``), so
+no product is ever repeated to rebuild a model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from lcpbench.prox import weighted_prox
+from lcpbench.quasinewton import DiagonalBFGS, OperatorBFGS
+from lcpbench.residuals import kkt_abs
+from lcpbench.steps import exact_step, feasible_step_bound
+
+__all__ = ["Pairs", "LevelOptions", "LevelOutcome", "Counters", "mono_level", "bi_level",
+           "pqn_direction"]
+
+
+@dataclass
+class Pairs:
+    """Secant pairs ``Q s_i = y_i`` (oldest first) with optional cached ``B0 s_i``."""
+
+    S: list = field(default_factory=list)
+    Y: list = field(default_factory=list)
+    B0S: list = field(default_factory=list)
+
+    def add(self, s: np.ndarray, y: np.ndarray, b0s: Optional[np.ndarray] = None) -> None:
+        self.S.append(s)
+        self.Y.append(y)
+        self.B0S.append(b0s)
+
+    def trim(self, memory: int) -> None:
+        """Keep the newest ``memory`` pairs (0 keeps all)."""
+        if memory and len(self.S) > memory:
+            del self.S[:-memory], self.Y[:-memory], self.B0S[:-memory]
+
+    def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> "Pairs":
+        """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept)."""
+        return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
+                     list(self.B0S))
+
+    def __len__(self) -> int:
+        return len(self.S)
+
+
+@dataclass(frozen=True)
+class LevelOptions:
+    """Choices shared by every level (documented on the solvers' parameters)."""
+
+    memory: int = 0
+    scaling: str = "bb"
+    gamma: float = 0.8
+    prox_tol: float = 1e-12
+    prox_max_iter: int = 100
+    recompute_every: int = 0
+    inner_rtol: float = 0.1
+    inner_max_iter: int = 20
+    inner_memory: int = 0
+    warm_rtol: float = 1e-3
+    warm_max_iter: int = 50
+    max_fallbacks: int = 3
+
+
+@dataclass
+class Counters:
+    """Per-solve counters, copied into ``SolveResult.info``."""
+
+    prox_newton_iters: int = 0
+    prox_damped: int = 0
+    prox_fallbacks: int = 0
+    gradient_fallbacks: int = 0
+    mono_fallbacks: int = 0
+    recomputes: int = 0
+    inner_iterations: int = 0
+    skipped_pairs: int = 0
+    abandoned_low: bool = False
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class LevelOutcome:
+    """How a level ended: ``stop`` (its stop test held), ``max_iter``,
+    ``unbounded`` (negative curvature with no blocking constraint: the model
+    is not bounded below, so the answer is the last point), or ``stationary``
+    (no descent direction exists: the projected gradient vanishes)."""
+
+    z: np.ndarray
+    G: np.ndarray
+    reason: str
+    iterations: int
+    pairs: Pairs
+
+
+def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: LevelOptions,
+                  counters: Counters) -> Optional[np.ndarray]:
+    """The Mono-PQN direction ``p = prox^B(z - H G) - z`` (eq. prox-pqn).
+
+    Falls back to the projected-gradient direction with step ``1/d`` when the
+    prox step does not descend (an inexact prox); returns None when no descent
+    direction exists (``z`` is stationary).
+    """
+    d, U, V = model.factors()
+    y = z - model.apply_H(G)
+    zhat, info = weighted_prox(y, d, U, V, tol=opts.prox_tol, max_iter=opts.prox_max_iter)
+    counters.prox_newton_iters += info.newton_iters
+    counters.prox_damped += info.damped
+    counters.prox_fallbacks += int(info.fallback)
+    p = zhat - z
+    if float(G @ p) < 0.0:
+        return p
+    counters.gradient_fallbacks += 1
+    p = np.maximum(z - G / d, 0.0) - z
+    return p if float(G @ p) < 0.0 else None
+
+
+def _step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
+          ) -> tuple[Optional[np.ndarray], Optional[np.ndarray], float]:
+    """Algorithm stepSize: ``eta* = min(eta', eta_hat)`` and the moved point.
+
+    Returns ``(None, None, inf)`` when the quadratic is unbounded along ``p``.
+    The blocking component(s) are set to exactly 0 so round-off never leaves
+    ``z`` slightly negative.
+    """
+    eta_u = exact_step(G, p, Qp)
+    eta_b = feasible_step_bound(z, p)
+    eta = min(eta_u, eta_b)
+    if not np.isfinite(eta):
+        return None, None, eta
+    z_new = z + eta * p
+    if eta_b <= eta_u:
+        neg = p < 0
+        block = np.zeros_like(neg)
+        block[neg] = -z[neg] / p[neg] <= eta_b * (1 + 1e-14)
+        z_new[block] = 0.0
+    np.maximum(z_new, 0.0, out=z_new)
+    return z_new, G + eta * Qp, eta
+
+
+def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.ndarray,
+               stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
+               opts: LevelOptions, counters: Counters, *, seed: Optional[Pairs] = None,
+               memory: Optional[int] = None,
+               exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+               checked: bool = False) -> LevelOutcome:
+    """Algorithm pqn (Mono-PQN) on ``min_{z>=0} q(z)`` with Hessian product ``apply``.
+
+    Parameters
+    ----------
+    apply : callable
+        ``Q v``; called exactly once per iteration (``Q p``).
+    z, G : ndarray
+        Start and the gradient of ``q`` there (not recomputed: free).
+    stop : callable
+        ``stop(z, G) -> bool``, tested before every iteration (for the top
+        level this is the solver context's monitor).
+    max_iter : int
+        Iteration cap of this level.
+    seed : Pairs, optional
+        Secant pairs of ``Q`` to start the BFGS model from.
+    memory : int, optional
+        Pairs kept (0 = all); defaults to ``opts.memory``.
+    exact_gradient : callable, optional
+        ``z -> Q z + c`` (one product); used every ``opts.recompute_every``
+        iterations to reset the recurrence's drift.
+    checked : bool
+        The caller has already tested ``stop`` at the start point (skip it once:
+        a second report of the same iterate would look like stagnation).
+    """
+    mem = opts.memory if memory is None else memory
+    model = DiagonalBFGS(z.shape[0], memory=mem or None, scaling=opts.scaling, gamma=opts.gamma)
+    if seed is not None and len(seed):
+        model.set_pairs(seed.S, seed.Y)
+    it = 0
+    reason = "max_iter"
+    while True:
+        if not checked and stop(z, G):
+            reason = "stop"
+            break
+        checked = False
+        if it >= max_iter:
+            break
+        p = pqn_direction(model, z, G, opts, counters)
+        if p is None:
+            reason = "stationary"
+            break
+        Qp = apply(p)
+        z_new, G_new, eta = _step(z, G, p, Qp)
+        if z_new is None:
+            reason = "unbounded"
+            break
+        it += 1
+        if not model.add_pair(eta * p, eta * Qp):
+            counters.skipped_pairs += 1
+        z, G = z_new, G_new
+        if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
+            G = exact_gradient(z)
+            counters.recomputes += 1
+    return LevelOutcome(z, G, reason, it, Pairs(list(model.S), list(model.Y),
+                                                [None] * len(model.S)))
+
+
+def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
+    """``B = base + U U' - V V'`` from pairs with cached base products (no product)."""
+    model = OperatorBFGS(base, n)
+    for s, y, b0s in zip(pairs.S, pairs.Y, pairs.B0S):
+        model.update(s, y, b0s + model.correction(s))
+    return model
+
+
+def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarray,
+             G: np.ndarray, stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
+             opts: LevelOptions, counters: Counters, *, state: Optional[dict] = None,
+             warm_start: bool = True,
+             exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None
+             ) -> tuple[LevelOutcome, dict]:
+    """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
+
+    Each outer iteration solves eq. pqnSubproblem,
+    ``min_{z>=0} 1/2 (z - x)' B (z - x) + g'(z - x)`` with ``B = lows[0] + U U' - V V'``,
+    whose gradient ``B (z - x) + g`` is free at ``z = x``; every inner
+    iteration costs one product with ``lows[0]`` plus ``O(n r)``. The inner
+    level is Mono-PQN seeded with the carried low-fidelity pairs (or, for a
+    longer chain, Bi-PQN with ``lows[1]``). ``B p`` comes from the inner
+    gradients (``G_inner_end - g``), so the high-fidelity BFGS update needs no
+    extra low-fidelity product. The carried pairs are corrected with
+    ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem Secant Conditions").
+
+    Fallback: when the subproblem's answer ``p`` does not descend
+    (``g'p >= 0``), the model is not positive along it (``p'Bp <= 0``), or the
+    inner model is unbounded (an indefinite ``lows[0]``), a Mono-PQN step with
+    the diagonal BFGS model of the high-fidelity pairs is taken instead
+    (counted in ``mono_fallbacks``); its ``lows[0] p`` costs one extra
+    low-fidelity product so the model can still be updated.
+
+    Warm start: the first outer iteration is the paper's low-fidelity
+    initialisation (Mono-PQN on the low-fidelity problem from ``x^(-1)``),
+    solved to ``warm_rtol`` instead of ``inner_rtol``; the point it returns is
+    then moved by the optimal over-relaxation, which costs no product beyond
+    the high-fidelity MVP the paper spends on ``A x^(0)``.
+
+    Returns
+    -------
+    outcome : LevelOutcome
+        With the high-fidelity pairs (``S``, ``Q S``, ``lows[0] S``).
+    state : dict
+        ``{"pairs": Pairs, "inner": Pairs|dict}`` to continue later.
+    """
+    n = z.shape[0]
+    base = lows[0]
+    state = state or {}
+    hi_pairs: Pairs = state.get("pairs") or Pairs()
+    hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
+        b if b is not None else base(s) for s, b in zip(hi_pairs.S, hi_pairs.B0S)])
+    model = _rebuild(base, n, hi_pairs)
+    inner_state = state.get("inner")
+    if state.get("model") is not None:  # our pairs were corrected by the caller: so is B
+        inner_state = _carry(inner_state, _delta(state["model"], model), opts)
+    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
+    diag.set_pairs(hi_pairs.S, hi_pairs.Y)
+    first = warm_start
+    it = streak = 0
+    reason = "max_iter"
+    while True:
+        if stop(z, G):
+            reason = "stop"
+            break
+        if it >= max_iter:
+            break
+        if opts.max_fallbacks and streak >= opts.max_fallbacks:
+            # the low-fidelity model failed max_fallbacks times in a row: finish with
+            # Mono-PQN on the high-fidelity pairs gathered so far (no more low MVPs)
+            counters.abandoned_low = True
+            out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
+                             seed=Pairs(list(diag.S), list(diag.Y)),
+                             exact_gradient=exact_gradient, checked=True)
+            counters.mono_fallbacks += out.iterations
+            return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, hi_pairs),
+                    {"pairs": hi_pairs, "inner": inner_state, "model": model})
+        r0 = kkt_abs(z, G)
+        rtol, cap = (opts.warm_rtol, opts.warm_max_iter) if first else \
+            (opts.inner_rtol, opts.inner_max_iter)
+        first = False
+        tol_in = rtol * r0
+
+        def B(v, _m=model):
+            return base(v) + _m.correction(v)
+
+        def inner_stop(zz, GG, _t=tol_in):
+            return kkt_abs(zz, GG) <= _t
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            inner, inner_state_new = _solve_sub(B, lows, z, G, inner_stop, cap, opts, counters,
+                                                inner_state)
+        counters.inner_iterations += inner.iterations
+        p = inner.z - z
+        Bp = inner.G - G
+        ok = inner.reason != "unbounded" and inner.iterations > 0 and \
+            bool(np.all(np.isfinite(inner.z))) and float(G @ p) < 0.0 and float(p @ Bp) > 0.0
+        streak = 0 if ok else streak + 1
+        if not ok:
+            counters.mono_fallbacks += 1
+            p = pqn_direction(diag, z, G, opts, counters)
+            if p is None:
+                reason = "stationary"
+                break
+            Bp = None
+        Qp = apply(p)
+        z_new, G_new, eta = _step(z, G, p, Qp)
+        if z_new is None:
+            reason = "unbounded"
+            break
+        it += 1
+        s, y = eta * p, eta * Qp
+        b0p = base(p) if Bp is None else Bp - model.correction(p)
+        Bs = eta * (b0p + model.correction(p))
+        old_model = model
+        model = _copy_model(model)
+        uv = model.update(s, y, Bs)
+        if uv is None:
+            counters.skipped_pairs += 1
+        else:
+            hi_pairs.add(s, y, eta * b0p)
+        diag.add_pair(s, y)
+        if opts.memory and len(hi_pairs) > opts.memory:
+            hi_pairs.trim(opts.memory)
+            model = _rebuild(base, n, hi_pairs)
+        # carry the subproblem's pairs to the next subproblem: Y <- Y + (B_new - B_old) S
+        inner_state = _carry(inner_state_new, _delta(old_model, model), opts)
+        z, G = z_new, G_new
+        if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
+            G = exact_gradient(z)
+            counters.recomputes += 1
+    return (LevelOutcome(z, G, reason, it, hi_pairs),
+            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+
+
+def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Callable,
+               cap: int, opts: LevelOptions, counters: Counters, inner_state):
+    """The subproblem of eq. pqnSubproblem by the next level down (Mono-PQN or Bi-PQN)."""
+    if len(lows) == 1:
+        inner = mono_level(B, z, G, stop, cap, opts, counters,
+                           seed=inner_state if isinstance(inner_state, Pairs) else None,
+                           memory=opts.inner_memory)
+        return inner, inner.pairs
+    return bi_level(B, lows[1:], z, G, stop, cap, opts, counters,
+                    state=inner_state if isinstance(inner_state, dict) else None,
+                    warm_start=False)
+
+
+def _copy_model(model: OperatorBFGS) -> OperatorBFGS:
+    new = OperatorBFGS(model.apply_B0, model.n, model.curvature_tol)
+    new.U, new.V, new.skipped = model.U, model.V, model.skipped
+    return new
+
+
+def _delta(old: OperatorBFGS, new: OperatorBFGS) -> Callable[[np.ndarray], np.ndarray]:
+    """``v -> (B_new - B_old) v`` for two corrections of the same base (``O(n r)``)."""
+    return lambda v: new.correction(v) - old.correction(v)
+
+
+def _carry(inner_state, delta: Callable, opts: LevelOptions):
+    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change."""
+    if isinstance(inner_state, Pairs):
+        out = inner_state.corrected(delta)
+        out.trim(opts.inner_memory)
+        return out
+    if isinstance(inner_state, dict):
+        # the inner level's Hessian is this level's B: its high pairs see the change;
+        # its base (a lower fidelity) and its own inner pairs are unaffected.
+        return {"pairs": inner_state["pairs"].corrected(delta), "inner": inner_state["inner"],
+                "model": inner_state["model"]}
+    return inner_state
