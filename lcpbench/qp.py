@@ -15,7 +15,8 @@ from typing import Optional
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["QP_BACKENDS", "solve_nonneg_qp", "polish_active_set"]
+__all__ = ["QP_BACKENDS", "solve_nonneg_qp", "polish_active_set", "refine_active_set",
+           "solve_and_refine"]
 
 #: Backend name -> (qpsolvers name, tight tolerance options at ``tol``).
 QP_BACKENDS = {
@@ -79,3 +80,77 @@ def polish_active_set(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> np.ndarray
     if np.linalg.norm(np.minimum(cand, wc)) < np.linalg.norm(np.minimum(x, w)):
         return cand
     return x
+
+
+def refine_active_set(A: np.ndarray, b: np.ndarray, x: np.ndarray, steps: int = 3) -> np.ndarray:
+    """Active-set correction steps on the dense matrix, each kept only if it helps.
+
+    Each step takes ``F = {x_i > w_i}`` (the min-map's choice), zeroes ``x``
+    off ``F``, solves the correction ``A_FF d = -(A x + b)_F`` by least
+    squares (the minimum-norm correction, so for singular ``A_FF`` the point
+    stays near the backend's answer instead of jumping to the minimum-norm
+    solution), clips ``x_F + d`` at 0, and keeps the candidate only if it
+    lowers ``||min(x, Ax+b)||``; it stops at the first step that does not.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n)
+    b : ndarray, shape (n,)
+    x : ndarray, shape (n,)
+        A non-negative approximate solution.
+    steps : int
+        Maximum number of steps.
+
+    Returns
+    -------
+    ndarray
+        The refined point (``x`` itself when no step helps).
+    """
+    best = _kkt(A, b, x)
+    for _ in range(steps):
+        if best == 0.0:
+            break
+        F = x > A @ x + b
+        cand = np.where(F, x, 0.0)
+        if F.any():
+            r = (A @ cand + b)[F]
+            d, *_ = np.linalg.lstsq(A[np.ix_(F, F)], -r, rcond=None)
+            cand[F] = np.maximum(cand[F] + d, 0.0)
+        res = _kkt(A, b, cand)
+        if not res < best:
+            break
+        x, best = cand, res
+    return x
+
+
+def _kkt(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
+    return float(np.linalg.norm(np.minimum(x, A @ x + b)))
+
+
+def solve_and_refine(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-10, *,
+                     retries: int = 2, polish: bool = True, refine_steps: int = 3
+                     ) -> tuple[Optional[np.ndarray], str, float]:
+    """One backend at ``tol`` (looser by 100x per retry on failure), then polish and refine.
+
+    Returns
+    -------
+    x : ndarray or None
+        None when every attempt failed.
+    message : str
+    tol_used : float
+        The tolerance of the attempt that succeeded (or the last tried).
+    """
+    for attempt in range(retries + 1):
+        try:
+            x, message = solve_nonneg_qp(A, b, backend, tol)
+        except Exception as exc:  # a backend crash is a failed solve, not a crash
+            x, message = None, f"{backend}: {type(exc).__name__}: {exc}"
+        if x is not None or attempt == retries or tol * 100 >= 1:
+            break
+        tol *= 100
+    if x is not None:
+        if polish:
+            x = polish_active_set(A, b, x)
+        if refine_steps:
+            x = refine_active_set(A, b, x, refine_steps)
+    return x, message, tol
