@@ -114,10 +114,10 @@ MonoPQNParams.__doc__ = "Parameters of mono-pqn.\n\n    Parameters\n    --------
 @dataclass(frozen=True)
 class BiPQNParams(MonoPQNParams):
     low: str = ""
-    inner_rtol: float = 0.1
+    inner_rtol: float = 0.01
     inner_max_iter: int = 20
     inner_memory: int = 0
-    warm_rtol: float = 1e-3
+    warm_rtol: float = 0.1
     warm_max_iter: int = 50
     max_fallbacks: int = 3
 

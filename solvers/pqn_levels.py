@@ -74,10 +74,10 @@ class LevelOptions:
     prox_tol: float = 1e-12
     prox_max_iter: int = 100
     recompute_every: int = 0
-    inner_rtol: float = 0.1
+    inner_rtol: float = 0.01
     inner_max_iter: int = 20
     inner_memory: int = 0
-    warm_rtol: float = 1e-3
+    warm_rtol: float = 0.1
     warm_max_iter: int = 50
     max_fallbacks: int = 3
 
