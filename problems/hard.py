@@ -127,7 +127,7 @@ class PlantedParams:
         _check_cond("cond", self.cond)
 
 
-@register_problem("planted", PlantedParams)
+@register_problem("planted", PlantedParams, default=True)
 def planted(p: PlantedParams) -> list[LCP]:
     """Random SPD LCPs with a planted solution (active, inactive and degenerate indices).
 
@@ -188,7 +188,7 @@ class SpdCondParams:
             raise ValueError("cond_max must be >= cond_min")
 
 
-@register_problem("spd-cond", SpdCondParams)
+@register_problem("spd-cond", SpdCondParams, default=True)
 def spd_cond(p: SpdCondParams) -> list[LCP]:
     """SPD LCPs with condition numbers log-spaced over cond_min..cond_max.
 
@@ -246,7 +246,7 @@ class SingularPsdParams:
                              f"({self.n_independent}) so that those rows are independent")
 
 
-@register_problem("singular-psd", SingularPsdParams)
+@register_problem("singular-psd", SingularPsdParams, default=True)
 def singular_psd(p: SingularPsdParams) -> list[LCP]:
     """Singular PSD LCPs ``A = J J'`` with redundant contacts (dependent rows of J).
 
@@ -319,7 +319,7 @@ def fathi_matrix(n: int) -> np.ndarray:
     return L @ L.T
 
 
-@register_problem("fathi", FathiParams)
+@register_problem("fathi", FathiParams, default=True)
 def fathi(p: FathiParams) -> list[LCP]:
     """Fathi's problem: ``A = L L'``, ``L = I + 2 tril(1, -1)``, ``b = -e``, solution ``x* = e1``.
 
@@ -353,7 +353,7 @@ class TinyParams:
     """
 
 
-@register_problem("tiny", TinyParams)
+@register_problem("tiny", TinyParams, default=True)
 def tiny(p: TinyParams) -> list[LCP]:
     """Corner cases with n = 0, 1, 2, each with its exact solution as reference.
 
@@ -422,7 +422,7 @@ class AllInactiveParams:
             raise ValueError("zero_fraction must be in [0, 1]")
 
 
-@register_problem("all-inactive", AllInactiveParams)
+@register_problem("all-inactive", AllInactiveParams, default=True)
 def all_inactive(p: AllInactiveParams) -> list[LCP]:
     """SPD LCPs with ``b >= 0``: the solution is ``x = 0``, ``w = b`` (no contact active).
 
@@ -477,7 +477,7 @@ class BadScaleParams:
             raise ValueError("log_max must be >= log_min")
 
 
-@register_problem("bad-scale", BadScaleParams)
+@register_problem("bad-scale", BadScaleParams, default=True)
 def bad_scale(p: BadScaleParams) -> list[LCP]:
     """SPD LCPs whose b spans magnitudes 10^log_min..10^log_max with mixed signs.
 
@@ -509,7 +509,7 @@ class BbCycleParams:
     """
 
 
-@register_problem("bb-cycle", BbCycleParams)
+@register_problem("bb-cycle", BbCycleParams, default=True)
 def bb_cycle(p: BbCycleParams) -> list[LCP]:
     """Small SPD LCPs on which projected BB without line search fails (cycles or diverges).
 

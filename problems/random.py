@@ -131,7 +131,7 @@ class BifidelityParams:
             raise ValueError(f"cost_ratio must be > 0, got {self.cost_ratio}")
 
 
-@register_problem("bifidelity", BifidelityParams)
+@register_problem("bifidelity", BifidelityParams, default=True)
 def bifidelity(p: BifidelityParams) -> list[LCP]:
     """SPD LCPs with a low-fidelity operator ``A_low = A + E`` named ``"low"``.
 

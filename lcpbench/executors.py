@@ -1,0 +1,231 @@
+"""Where runs execute: in this process, in forked children, or on a Dask cluster.
+
+All executors give the same rows (up to timings) for the same sweep, because
+every run is the same pure function of its :class:`~lcpbench.sweep.RunSpec`.
+
+Isolation: outside the plain in-process path, every run executes in a child
+forked for it (:class:`ForkedCall`, ``os.fork`` and a pipe, which also works
+inside a daemonic Dask worker where ``multiprocessing`` refuses to start
+children). The parent kills a child that outlives its deadline (the run is
+recorded as ``timeout``) and records a child that dies (killed, segfault) as
+``failed`` with its exit status, so per-run timeouts and crash containment
+hold on every executor.
+
+Dask is an optional dependency (``pip install -e .[dask]``); problem data
+reaches workers as the problem *spec* (a few bytes): each worker regenerates
+the instance from the registry (deterministic by seed) or reads it from the
+shared file a stored set names, never a pickled matrix.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import select
+import signal
+import time
+from typing import Callable, Optional
+
+__all__ = ["ForkedCall", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor",
+           "EXECUTORS"]
+
+EXECUTORS = ("local", "process", "dask")
+
+#: Extra seconds a child gets beyond ``timeout`` (the solver's own time budget stops it
+#: first, cleanly; the kill is for code that never returns to the budget check).
+GRACE_S = 5.0
+
+Record = Callable[[dict, object], None]
+Failure = Callable[[object, str, str], dict]
+
+
+class ForkedCall:
+    """``fn(*args)`` in a forked child; the result comes back pickled through a pipe."""
+
+    def __init__(self, fn: Callable, args: tuple, deadline: Optional[float]):
+        self.deadline = deadline
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # child
+            os.close(r)
+            code = 0
+            try:
+                payload = pickle.dumps(("ok", fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
+            except BaseException as exc:  # noqa: BLE001 - reported to the parent
+                payload = pickle.dumps(("error", f"{type(exc).__name__}: {exc}"))
+                code = 1
+            try:
+                view = memoryview(payload)
+                while view:
+                    n = os.write(w, view)
+                    view = view[n:]
+            finally:
+                os._exit(code)
+        os.close(w)
+        self.pid, self.fd = pid, r
+        self.chunks: list[bytes] = []
+        self.done = False
+        self.result = None
+
+    def poll(self, wait: float = 0.0) -> bool:
+        """Read what the child sent; True once it has finished (or been killed)."""
+        if self.done:
+            return True
+        ready, _, _ = select.select([self.fd], [], [], wait)
+        if ready:
+            data = os.read(self.fd, 1 << 20)
+            if data:
+                self.chunks.append(data)
+                return False
+            self._reap()          # EOF: the child closed its end (exited)
+            return True
+        if self.deadline is not None and time.monotonic() > self.deadline:
+            os.kill(self.pid, signal.SIGKILL)
+            self._reap(timeout=True)
+            return True
+        return False
+
+    def _reap(self, timeout: bool = False) -> None:
+        _, status = os.waitpid(self.pid, 0)
+        os.close(self.fd)
+        self.done = True
+        if timeout:
+            self.result = ("timeout", None)
+            return
+        try:
+            kind, value = pickle.loads(b"".join(self.chunks))
+            self.result = (kind, value)
+        except Exception:  # the child died before sending everything
+            if os.WIFSIGNALED(status):
+                self.result = ("died", f"worker process died (signal {os.WTERMSIG(status)})")
+            else:
+                self.result = ("died",
+                               f"worker process died (exit code {os.waitstatus_to_exitcode(status)})")
+
+
+def _deadline(timeout: Optional[float]) -> Optional[float]:
+    return None if timeout is None else time.monotonic() + timeout + GRACE_S
+
+
+def outcome(call_result, run, timeout, failure: Failure):
+    """``(row, history)`` from a :class:`ForkedCall` result."""
+    kind, value = call_result
+    if kind == "ok":
+        return value
+    if kind == "timeout":
+        return failure(run, "timeout", f"killed after {timeout:g} s (+{GRACE_S:g} s grace)"), None
+    return failure(run, "failed", value), None
+
+
+class LocalExecutor:
+    """Runs one after another; in this process, or in a forked child when a timeout is set."""
+
+    def __init__(self, timeout: Optional[float] = None):
+        self.timeout = timeout
+
+    def run(self, todo: list, work: Callable, failure: Failure, record: Record) -> None:
+        if self.timeout is None:
+            for run in todo:
+                record(*work(run))
+            return
+        ProcessExecutor(1, self.timeout).run(todo, work, failure, record)
+
+
+class ProcessExecutor:
+    """Up to ``jobs`` forked children at a time, one per run."""
+
+    def __init__(self, jobs: int, timeout: Optional[float] = None):
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        self.jobs, self.timeout = jobs, timeout
+
+    def run(self, todo: list, work: Callable, failure: Failure, record: Record) -> None:
+        pending = list(reversed(todo))
+        active: list[tuple] = []
+        while pending or active:
+            while pending and len(active) < self.jobs:
+                run = pending.pop()
+                active.append((run, ForkedCall(work, (run,), _deadline(self.timeout))))
+            fds = [c.fd for _, c in active]
+            select.select(fds, [], [], 0.05)
+            still = []
+            for run, call in active:
+                if call.poll():
+                    record(*outcome(call.result, run, self.timeout, failure))
+                else:
+                    still.append((run, call))
+            active = still
+
+
+def _dask_task(work: Callable, run, timeout: Optional[float]):
+    """On a Dask worker: the run in a forked child, with its deadline."""
+    call = ForkedCall(work, (run,), _deadline(timeout))
+    while not call.poll(wait=0.05):
+        pass
+    return call.result
+
+
+class DaskExecutor:
+    """Runs as tasks on a Dask cluster (an existing scheduler, or a LocalCluster).
+
+    Parameters
+    ----------
+    jobs : int
+        Workers of the LocalCluster started when no scheduler is given (one
+        thread each: the solvers' BLAS calls are the parallelism).
+    timeout : float, optional
+    scheduler : str, optional
+        Address of a running scheduler, e.g. ``tcp://10.0.0.5:8786`` (see
+        docs/executors.md for dask-jobqueue on SLURM).
+    """
+
+    def __init__(self, jobs: int = 2, timeout: Optional[float] = None,
+                 scheduler: Optional[str] = None):
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise ImportError("the dask executor needs dask.distributed: pip install -e "
+                              "'.[dask]'") from None
+        self.jobs, self.timeout, self.scheduler = jobs, timeout, scheduler
+
+    def run(self, todo: list, work: Callable, failure: Failure, record: Record) -> None:
+        from distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        if self.scheduler:
+            client = Client(self.scheduler)
+        else:
+            cluster = LocalCluster(n_workers=self.jobs, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, host="127.0.0.1")
+            client = Client(cluster)
+        try:
+            futures = {client.submit(_dask_task, work, run, self.timeout, pure=False,
+                                     key=f"lcpbench-{run.run_id}-{time.time_ns()}"): run
+                       for run in todo}
+            for fut in as_completed(futures):
+                run = futures[fut]
+                try:
+                    result = fut.result()
+                except Exception as exc:  # the worker itself died (KilledWorker, ...)
+                    record(failure(run, "failed", f"dask task failed: {type(exc).__name__}: "
+                                                  f"{exc}"), None)
+                    continue
+                record(*outcome(result, run, self.timeout, failure))
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def make_executor(kind: str, jobs: int = 1, timeout: Optional[float] = None,
+                  scheduler: Optional[str] = None):
+    """The executor named ``kind`` (``local``, ``process`` or ``dask``)."""
+    if kind == "local":
+        if jobs != 1:
+            raise ValueError("--jobs needs --executor process or dask (local runs one at a time)")
+        return LocalExecutor(timeout)
+    if kind == "process":
+        return ProcessExecutor(jobs, timeout)
+    if kind == "dask":
+        return DaskExecutor(jobs, timeout, scheduler)
+    raise ValueError(f"unknown executor {kind!r}; use one of {', '.join(EXECUTORS)}")

@@ -1,0 +1,308 @@
+"""Run a sweep: plan the runs, solve each, verify it, append it to the run store.
+
+Every run is verified by the framework (one uncounted product, inside
+:func:`lcpbench.api.run_solver`) and compared with the instance's reference
+when one exists: a stored one (planted solutions, stored sets) or the
+consensus of the QP solvers (:func:`lcpbench.reference`) for explicit
+matrices up to ``reference_max_n``.
+
+Execution is delegated to an executor (:mod:`lcpbench.executors`): in this
+process, in forked children (at most ``jobs`` at a time, each inheriting the
+problem instances: nothing is pickled but the result) or on Dask. A run over
+its timeout is killed and recorded as ``timeout``; a run whose process dies
+is recorded as ``failed`` with its exit status. The sweep never stops for one
+run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import sys
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Callable, Optional
+
+import numpy as np
+import pandas as pd
+
+from .api import run_solver
+from .context import Budget
+from .lcp import LCP
+from .reference import reference as consensus_reference
+from .registry import get_problem, get_solver, make_params
+from .store import RunStore
+from .sweep import RunSpec, Spec, Sweep
+
+__all__ = ["Plan", "plan", "execute", "perform", "instance_reference", "machine_info"]
+
+#: Consensus references are computed for explicit instances up to this size.
+REFERENCE_MAX_N = 3000
+
+
+@dataclass
+class Plan:
+    """The runs of a sweep and the instances they need."""
+
+    sweep: Sweep
+    runs: list[RunSpec]
+    instances: dict[str, list[LCP]]
+    skipped: list[str] = field(default_factory=list)
+
+
+def _problem_key(spec: Spec) -> str:
+    return spec.name + json.dumps(spec.params, sort_keys=True)
+
+
+def generate(spec: Spec) -> list[LCP]:
+    """The instances of one problem spec."""
+    info = get_problem(spec.name)
+    lcps = info.func(make_params(spec.name, info.params, spec.values()))
+    if not isinstance(lcps, (list, tuple)) or not all(isinstance(p, LCP) for p in lcps):
+        raise TypeError(f"problem {spec.name!r} must return a list of LCP, got {type(lcps)}")
+    return list(lcps)
+
+
+def plan(sweep: Sweep, progress: bool = False) -> Plan:
+    """Expand the sweep into runs (validating every spec first)."""
+    solver_specs = sweep.solver_specs()
+    problem_specs = sweep.problem_specs()
+    instances, runs, skipped = {}, [], []
+    for ps in problem_specs:
+        lcps = generate(ps)
+        instances[_problem_key(ps)] = lcps
+        for ss in solver_specs:
+            info = get_solver(ss.name)
+            for i, lcp in enumerate(lcps):
+                if info.multifidelity and not lcp.low:
+                    skipped.append(f"{ss.label} on {ps.label}/{lcp.name}: no low-fidelity operator")
+                    continue
+                for r in range(sweep.repeat):
+                    runs.append(RunSpec(ps, i, lcp.name or str(i), ss, r, sweep.tol, sweep.stop,
+                                        sweep.max_emvps))
+    return Plan(sweep, runs, instances, skipped)
+
+
+def instance_reference(lcp: LCP, max_n: int = REFERENCE_MAX_N) -> Optional[dict]:
+    """The reference of an instance: stored, else the QP consensus for explicit A."""
+    if lcp.reference is not None:
+        ref = dict(lcp.reference)
+        ref.setdefault("solvers", ref.get("solvers", ["stored"]))
+        return ref
+    if not lcp.A.explicit or lcp.n > max_n:
+        return None
+    try:
+        r = consensus_reference(lcp)
+    except RuntimeError:
+        return None
+    return r.as_dict()
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / max(1.0, float(np.linalg.norm(b))))
+
+
+def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float] = None
+            ) -> tuple[dict, pd.DataFrame]:
+    """Solve one run and build its result row and history."""
+    started = _now()
+    budget = Budget(max_emvps=run.max_emvps, max_seconds=timeout)
+    res = run_solver(lcp, run.solver.name, stop=run.stop, tol=run.tol, budget=budget,
+                     params=run.solver.values())
+    status, message = res.status.value, res.message
+    if timeout is not None and "time budget" in message:
+        status = "timeout"
+    v = res.verified
+    row = _base_row(run, lcp)
+    row.update({
+        "status": status, "message": message, "solved": res.solved,
+        "false_convergence": res.false_convergence,
+        "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
+        "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
+        "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
+        "threshold": res.threshold, "mvps": res.mvps,
+        "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
+        "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
+        "iterations": res.iterations, "time_s": res.time_s, "mvp_time_s": res.mvp_time_s,
+        "info": json.dumps(res.info, sort_keys=True, default=str), "started": started,
+    })
+    if ref is not None and lcp.n > 0 and np.all(np.isfinite(res.x)):
+        w = lcp.residual_w(res.x)
+        row["ref_err_w"] = _rel(w, np.asarray(ref["w"]))
+        f = float(v.get("objective", np.nan))
+        row["ref_err_objective"] = abs(f - float(ref["objective"])) / max(
+            1.0, abs(float(ref["objective"])))
+        row["ref_solvers"] = ",".join(ref.get("solvers", []))
+    row["finished"] = _now()
+    return row, res.history
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _base_row(run: RunSpec, lcp: LCP) -> dict:
+    """The columns that describe a run, whatever its outcome."""
+    info = get_solver(run.solver.name)
+    return {"run_id": run.run_id, "kind": "offline", "problem": run.problem.label,
+            "problem_params": json.dumps(run.problem.params, sort_keys=True),
+            "family": lcp.meta.get("family", run.problem.name), "instance": run.instance_name,
+            "instance_index": run.instance, "n": lcp.n, "solver": run.solver.label,
+            "solver_name": run.solver.name,
+            "solver_params": json.dumps(run.solver.params, sort_keys=True),
+            "mvp_only": info.mvp_only, "multifidelity": info.multifidelity,
+            "reference_solver": info.reference, "tol": run.tol, "stop": run.stop,
+            "repeat": run.repeat}
+
+
+def _failure_row(run: RunSpec, lcp: LCP, status: str, message: str) -> dict:
+    row = _base_row(run, lcp)
+    row.update({"status": status, "message": message, "solved": False,
+                "false_convergence": False, "started": _now(), "finished": _now()})
+    return row
+
+
+def _safe_perform(run, lcp, ref, timeout):
+    try:
+        return perform(run, lcp, ref, timeout)
+    except Exception as exc:  # the framework itself failed on this run: record it
+        return _failure_row(run, lcp, "failed", f"{type(exc).__name__}: {exc}"), None
+
+
+def machine_info() -> dict:
+    """Package versions, CPU, BLAS and thread settings for ``meta.json``."""
+    import importlib.metadata as md
+
+    versions = {}
+    for pkg in ("lcpbench", "numpy", "scipy", "pandas", "qpsolvers", "clarabel", "osqp",
+                "proxsuite", "matplotlib"):
+        try:
+            versions[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            versions[pkg] = None
+    blas = None
+    try:
+        cfg = np.show_config(mode="dicts")
+        blas = cfg.get("Build Dependencies", {}).get("blas", {})
+    except Exception:
+        pass
+    threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                               "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
+    return {"python": sys.version.split()[0], "platform": platform.platform(),
+            "cpu": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
+            "versions": versions, "blas": blas, "threads": threads}
+
+
+def git_commit() -> Optional[str]:
+    import subprocess
+
+    try:
+        here = os.path.dirname(os.path.abspath(__file__))
+        out = subprocess.run(["git", "-C", here, "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=5)
+        return out.stdout.strip() or None
+    except Exception:
+        return None
+
+
+_WORKER_CACHE: dict = {}
+
+
+def remote_work(run: RunSpec, timeout: Optional[float] = None,
+                reference_max_n: int = REFERENCE_MAX_N):
+    """One run from its spec alone (for workers that do not share the planner's memory).
+
+    The instance is regenerated from the problem spec (deterministic by seed)
+    and cached per worker process with its reference, so no matrix travels.
+    """
+    key = _problem_key(run.problem)
+    if key not in _WORKER_CACHE:
+        _WORKER_CACHE.clear()                      # keep one family in memory at a time
+        _WORKER_CACHE[key] = (generate(run.problem), {})
+    lcps, refs = _WORKER_CACHE[key]
+    if run.instance not in refs:
+        refs[run.instance] = instance_reference(lcps[run.instance], reference_max_n)
+    return _safe_perform(run, lcps[run.instance], refs[run.instance], timeout)
+
+
+def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: int = 1,
+            timeout: Optional[float] = None, scheduler: Optional[str] = None,
+            quiet: bool = False, reference_max_n: int = REFERENCE_MAX_N,
+            on_row: Optional[Callable[[dict], None]] = None) -> dict:
+    """Run every planned run that has no row yet; returns counts.
+
+    Rows are appended as runs finish; a run already in the store is skipped.
+
+    Parameters
+    ----------
+    executor : {"local", "process", "dask"}, optional
+        Default: ``process`` when ``jobs > 1``, else ``local``.
+    jobs : int
+        Parallel runs (processes or LocalCluster workers).
+    timeout : float, optional
+        Per-run seconds; a run over it is stopped and recorded as ``timeout``.
+    scheduler : str, optional
+        Dask scheduler address (``dask`` executor only).
+    """
+    from functools import partial
+
+    from tqdm import tqdm
+
+    from .executors import make_executor
+
+    kind = executor or ("process" if jobs > 1 else "local")
+    runner = make_executor(kind, jobs, timeout, scheduler)
+    done = store.done_ids()
+    todo = [r for r in p.runs if r.run_id not in done]
+    counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
+              "timeout": 0, "false_convergence": 0}
+    refs: dict[tuple, Optional[dict]] = {}
+    lcp_of = lambda run: p.instances[_problem_key(run.problem)][run.instance]  # noqa: E731
+
+    def ref_of(run: RunSpec) -> Optional[dict]:
+        key = (_problem_key(run.problem), run.instance)
+        if key not in refs:
+            refs[key] = instance_reference(lcp_of(run), reference_max_n)
+        return refs[key]
+
+    def local_work(run: RunSpec):
+        return _safe_perform(run, lcp_of(run), ref_of(run), timeout)
+
+    if kind == "dask":
+        work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n)
+    else:
+        work = local_work
+        for run in todo:        # references before forking, so children inherit them
+            ref_of(run)
+
+    bar = tqdm(total=len(todo), disable=quiet, unit="run", desc="lcpbench run", file=sys.stderr)
+
+    def record(row: dict, hist) -> None:
+        store.append(row, hist)
+        counts["ran"] += 1
+        if row["status"] == "timeout":
+            counts["timeout"] += 1
+        elif not row.get("solved", False):
+            counts["failed"] += 1
+        if row.get("false_convergence") in (True, "True"):
+            counts["false_convergence"] += 1
+        if on_row is not None:
+            on_row(row)
+        bar.update(1)
+        bar.set_postfix(unsolved=counts["failed"], timeout=counts["timeout"])
+
+    def failure(run: RunSpec, status: str, message: str) -> dict:
+        return _failure_row(run, lcp_of(run), status, message)
+
+    try:
+        runner.run(todo, work, failure, record)
+    finally:
+        bar.close()
+    return counts
+
+
+def describe_counts(counts: dict) -> str:
+    return (f"{counts['ran']} run(s) done, {counts['kept']} kept from before; "
+            f"{counts['failed']} not solved, {counts['timeout']} timed out, "
+            f"{counts['false_convergence']} false 'converged'")

@@ -1,0 +1,231 @@
+"""Sweep plans: solver and problem specs expanded to the list of runs.
+
+A spec is ``name[:key=value,...]``. A value in brackets sweeps:
+``bi-pqn:low=[p3,p4,p6]`` is three solvers, and several swept keys expand to
+their Cartesian product. A parameter whose type is itself a list (e.g.
+``multi-pqn:lows=[p6,p3]``) takes the bracketed list as one value; sweep it
+with nested brackets, ``lows=[[p6,p3],[p4,p3]]``.
+
+A sweep can also come from a TOML file (``--config``)::
+
+    solvers = ["bb-pgd", "mono-pqn", "bi-pqn:low=[p3,p4]"]
+    problems = ["random-spd:count=4", "planted"]
+    tol = 1e-8
+    stop = "paper"
+    repeat = 1
+    seed = 0
+    timeout = 60
+    max_emvps = 5000
+
+Every run of the plan has a stable id (a hash of what defines it), which is what
+lets an interrupted sweep resume without redoing or duplicating rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import typing
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from .registry import get_problem, get_solver, make_params, parse_spec, problems, solvers, \
+    split_top_level
+
+__all__ = ["Spec", "RunSpec", "Sweep", "expand", "load_config", "default_sweep"]
+
+
+@dataclass(frozen=True)
+class Spec:
+    """One solver or problem with concrete parameters.
+
+    Attributes
+    ----------
+    name : str
+        Registry name.
+    given : tuple of (str, str)
+        The parameters as the user wrote them (for labels).
+    params : dict
+        All parameters after validation (defaults filled in), JSON-ready.
+    """
+
+    name: str
+    given: tuple
+    params: dict = field(hash=False, compare=False)
+
+    @property
+    def label(self) -> str:
+        """``name:k=v,...`` with only the parameters the user set."""
+        if not self.given:
+            return self.name
+        return self.name + ":" + ",".join(f"{k}={v}" for k, v in self.given)
+
+    def values(self) -> dict:
+        return dict(self.given)
+
+
+def _is_list_type(tp: Any) -> bool:
+    origin = typing.get_origin(tp)
+    if origin is typing.Union:
+        return any(_is_list_type(a) for a in typing.get_args(tp))
+    return origin in (list, tuple)
+
+
+def _items(value: str) -> Optional[list[str]]:
+    v = value.strip()
+    if v.startswith("[") and v.endswith("]"):
+        return [s.strip() for s in split_top_level(v[1:-1])]
+    return None
+
+
+def expand(spec: str, kind: str, seed: Optional[int] = None) -> list[Spec]:
+    """Expand ``name:k=[a,b],...`` into validated :class:`Spec` objects.
+
+    Parameters
+    ----------
+    spec : str
+    kind : {"solver", "problem"}
+    seed : int, optional
+        For problems: the value of a ``seed`` parameter the spec leaves unset.
+
+    Raises
+    ------
+    KeyError, ValueError, TypeError
+        Unknown name or parameter, or a value of the wrong type, with the
+        registry's message (nothing is run before the whole plan is valid).
+    """
+    name, values = parse_spec(spec)
+    info = get_solver(name) if kind == "solver" else get_problem(name)
+    types = typing.get_type_hints(info.params)
+    if kind == "problem" and seed is not None and "seed" in types and "seed" not in values:
+        values["seed"] = str(seed)
+    axes = []
+    for key, value in values.items():
+        items = _items(value)
+        if items is None:
+            axes.append([(key, value)])
+        elif key in types and _is_list_type(types[key]):
+            nested = [_items(i) for i in items]
+            if items and all(n is not None for n in nested):
+                axes.append([(key, i) for i in items])      # [[a,b],[c]]: sweep over lists
+            else:
+                axes.append([(key, value)])                  # [a,b]: one list value
+        else:
+            axes.append([(key, i) for i in items])
+    out = []
+    for combo in itertools.product(*axes) if axes else [()]:
+        given = tuple(sorted(combo))
+        params = make_params(name, info.params, dict(given))
+        out.append(Spec(name, given, _jsonable(dataclasses.asdict(params))))
+    return out
+
+
+def _jsonable(d: dict) -> dict:
+    return json.loads(json.dumps(d, default=str))
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One solve of the plan."""
+
+    problem: Spec
+    instance: int
+    instance_name: str
+    solver: Spec
+    repeat: int
+    tol: float
+    stop: str
+    max_emvps: float
+
+    @property
+    def run_id(self) -> str:
+        key = json.dumps({"problem": [self.problem.name, self.problem.params],
+                          "instance": self.instance_name, "index": self.instance,
+                          "solver": [self.solver.name, self.solver.params],
+                          "repeat": self.repeat, "tol": self.tol, "stop": self.stop,
+                          "max_emvps": self.max_emvps}, sort_keys=True)
+        return hashlib.sha1(key.encode()).hexdigest()[:16]
+
+
+@dataclass
+class Sweep:
+    """What ``lcpbench run`` does: solvers x problems x repeats at one stop rule."""
+
+    solvers: list[str]
+    problems: list[str]
+    tol: float = 1e-8
+    stop: str = "paper"
+    repeat: int = 1
+    seed: int = 0
+    timeout: Optional[float] = None
+    max_emvps: float = 5000.0
+
+    def __post_init__(self) -> None:
+        if not self.solvers:
+            raise ValueError("the sweep has no solver; give --solver NAME (see `lcpbench list`)")
+        if not self.problems:
+            raise ValueError("the sweep has no problem; give --problem NAME (see `lcpbench list`)")
+        if self.stop not in ("paper", "kkt"):
+            raise ValueError(f"stop must be 'paper' or 'kkt', got {self.stop!r}")
+        if not self.tol > 0:
+            raise ValueError(f"tol must be > 0, got {self.tol}")
+        if self.repeat < 1:
+            raise ValueError(f"repeat must be >= 1, got {self.repeat}")
+        if self.timeout is not None and not self.timeout > 0:
+            raise ValueError(f"timeout must be > 0 seconds, got {self.timeout}")
+
+    def solver_specs(self) -> list[Spec]:
+        return _unique(s for spec in self.solvers for s in expand(spec, "solver"))
+
+    def problem_specs(self) -> list[Spec]:
+        return _unique(p for spec in self.problems for p in expand(spec, "problem", self.seed))
+
+    def config(self) -> dict:
+        """The configuration that defines the rows (stored in ``meta.json``)."""
+        return {"solvers": list(self.solvers), "problems": list(self.problems), "tol": self.tol,
+                "stop": self.stop, "repeat": self.repeat, "seed": self.seed,
+                "max_emvps": self.max_emvps}
+
+
+def _unique(specs) -> list[Spec]:
+    seen, out = set(), []
+    for s in specs:
+        key = (s.name, json.dumps(s.params, sort_keys=True))
+        if key not in seen:
+            seen.add(key)
+            out.append(s)
+    return out
+
+
+_CONFIG_KEYS = {"solvers", "problems", "tol", "stop", "repeat", "seed", "timeout", "max_emvps"}
+
+
+def load_config(path: str) -> dict:
+    """Read a sweep TOML file into keyword arguments of :class:`Sweep`."""
+    import tomllib
+
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"sweep config {path!r} not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"sweep config {path!r} is not valid TOML: {exc}") from None
+    unknown = set(data) - _CONFIG_KEYS
+    if unknown:
+        raise ValueError(f"sweep config {path!r}: unknown key(s) {', '.join(sorted(unknown))}; "
+                         f"allowed: {', '.join(sorted(_CONFIG_KEYS))}")
+    for key in ("solvers", "problems"):
+        if key in data and (not isinstance(data[key], list) or
+                            not all(isinstance(s, str) for s in data[key])):
+            raise ValueError(f"sweep config {path!r}: {key} must be a list of strings")
+    return data
+
+
+def default_sweep() -> tuple[list[str], list[str]]:
+    """Every registered MVP-only solver and reference solver, on the default problems."""
+    sv = [name for name, info in sorted(solvers().items()) if info.mvp_only or info.reference]
+    pb = [name for name, info in sorted(problems().items()) if info.default]
+    return sv, pb

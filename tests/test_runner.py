@@ -1,0 +1,152 @@
+"""lcpbench run: sweep expansion, store, resume, timeouts, failure rows, report."""
+
+import json
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import lcpbench
+from lcpbench import executors, register_solver
+from lcpbench.registry import make_params
+from lcpbench.result import Status
+from lcpbench.store import HISTORY_STORE_COLUMNS, RESULT_COLUMNS, RunStore
+from lcpbench.sweep import Sweep, expand
+from lcpbench.runner import execute, plan
+
+
+@dataclass(frozen=True)
+class _Mode:
+    """Parameters of the misbehaving test solver.
+
+    Parameters
+    ----------
+    mode : str
+        sleep, raise, nan or die.
+    """
+
+    mode: str = "sleep"
+
+
+@register_solver("test-misbehave", _Mode)
+def _misbehave(ctx, p):
+    """A solver that misbehaves on purpose."""
+    if p.mode == "sleep":
+        time.sleep(60)                 # ignores every budget: only a kill stops it
+    if p.mode == "raise":
+        raise RuntimeError("boom on purpose")
+    if p.mode == "die":
+        os._exit(3)
+    x = np.full(ctx.n, np.nan)
+    ctx.report(x, x)
+    return ctx.finish(x, x)
+
+
+SMALL = "fathi:sizes=[4,6]"
+
+
+def test_expand_sweeps_lists_and_products():
+    assert [s.label for s in expand("bi-pqn:low=[p3,p4]", "solver")] == \
+        ["bi-pqn:low=p3", "bi-pqn:low=p4"]
+    assert len(expand("bi-pqn:low=[p3,p4],memory=[0,5]", "solver")) == 4
+    one = expand("multi-pqn:lows=[p6,p3]", "solver")
+    assert len(one) == 1 and one[0].params["lows"] == ["p6", "p3"]
+    assert len(expand("multi-pqn:lows=[[p6,p3],[p4]]", "solver")) == 2
+    with pytest.raises(Exception, match="memry"):
+        expand("mono-pqn:memry=3", "solver")
+    with pytest.raises(KeyError, match="no-such"):
+        expand("no-such-solver", "solver")
+
+
+def test_run_store_schema_and_resume_without_duplicates(tmp_path):
+    sweep = Sweep(solvers=["bb-pgd", "mono-pqn"], problems=[SMALL], repeat=2)
+    p = plan(sweep)
+    store = RunStore(tmp_path)
+    counts = execute(p, store, quiet=True)
+    assert counts["ran"] == len(p.runs) == 8
+    res = pd.read_csv(tmp_path / "results.csv")
+    hist = pd.read_csv(tmp_path / "history.csv")
+    assert list(res.columns) == RESULT_COLUMNS and list(hist.columns) == HISTORY_STORE_COLUMNS
+    assert res["solved"].all()
+    # simulate an interruption: keep two rows and half of a third
+    lines = (tmp_path / "results.csv").read_text().splitlines(keepends=True)
+    (tmp_path / "results.csv").write_text("".join(lines[:3]) + lines[3][:20])
+    again = execute(plan(sweep), RunStore(tmp_path), quiet=True)
+    assert again["kept"] == 2 and again["ran"] == 6
+    res = pd.read_csv(tmp_path / "results.csv")
+    assert len(res) == 8 and res["run_id"].is_unique
+    assert set(RunStore(tmp_path).history()["run_id"]) == set(res["run_id"])
+
+
+def test_failure_rows_never_stop_the_sweep(tmp_path, monkeypatch):
+    monkeypatch.setattr(executors, "GRACE_S", 0.5)
+    solvers = ["test-misbehave:mode=[sleep,raise,nan,die]", "bb-pgd"]
+    sweep = Sweep(solvers=solvers, problems=["fathi:sizes=[4]"], timeout=1.0)
+    counts = execute(plan(sweep), RunStore(tmp_path), jobs=2, timeout=1.0, quiet=True)
+    res = pd.read_csv(tmp_path / "results.csv").set_index("solver")
+    assert counts["ran"] == 5
+    assert res.loc["test-misbehave:mode=sleep", "status"] == "timeout"
+    assert res.loc["test-misbehave:mode=raise", "status"] == "failed"
+    assert "boom on purpose" in res.loc["test-misbehave:mode=raise", "message"]
+    assert res.loc["test-misbehave:mode=nan", "status"] == "diverged"
+    assert res.loc["test-misbehave:mode=die", "status"] == "failed"
+    assert "exit code 3" in res.loc["test-misbehave:mode=die", "message"]
+    assert bool(res.loc["bb-pgd", "solved"])
+
+
+def test_in_process_failures_are_rows_too(tmp_path):
+    sweep = Sweep(solvers=["test-misbehave:mode=[raise,nan]"], problems=["fathi:sizes=[4]"])
+    execute(plan(sweep), RunStore(tmp_path), quiet=True)
+    res = pd.read_csv(tmp_path / "results.csv")
+    assert sorted(res["status"]) == ["diverged", "failed"]
+
+
+def test_reference_errors_are_recorded(tmp_path):
+    sweep = Sweep(solvers=["mono-pqn"], problems=["planted:count=2"])
+    execute(plan(sweep), RunStore(tmp_path), quiet=True)
+    res = pd.read_csv(tmp_path / "results.csv")
+    assert (res["ref_err_w"] < 1e-6).all()
+
+
+def test_multifidelity_solvers_skip_instances_without_low():
+    p = plan(Sweep(solvers=["bi-pqn"], problems=[SMALL]))
+    assert not p.runs and len(p.skipped) == 2 and "no low-fidelity" in p.skipped[0]
+
+
+def test_cli_run_resume_refusal_and_report(tmp_path, capsys):
+    from lcpbench.cli import main
+
+    out = tmp_path / "store"
+    args = ["run", "--solver", "bb-pgd", "--solver", "mono-pqn", "--problem", SMALL,
+            "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    html = (out / "report.html").read_text()
+    for section in ("Offline comparison", "E-MVPs per problem size", "E-MVPs per instance family",
+                    "Convergence", "Speed against error", "Performance profiles", "Failures"):
+        assert section in html, section
+    assert "http://" not in html and "https://" not in html.replace("http://www.w3.org", "")
+    assert (out / "tables" / "offline.csv").exists() and (out / "tables" / "offline.md").exists()
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["counts"]["ran"] == 4 and meta["machine"]["versions"]["numpy"]
+    assert main(args) == 0                                   # resume: nothing to do
+    assert len(pd.read_csv(out / "results.csv")) == 4
+    rc = main(args[:-1] + ["--tol", "1e-6", "--quiet"])      # changed config: refused
+    assert rc == 2
+    assert "different configuration" in capsys.readouterr().err
+
+
+def test_config_file(tmp_path):
+    from lcpbench.cli import main
+
+    cfg = tmp_path / "s.toml"
+    cfg.write_text('solvers = ["bb-pgd"]\nproblems = ["fathi:sizes=[4]"]\ntol = 1e-9\n')
+    assert main(["run", "--config", str(cfg), "--out", str(tmp_path / "o"), "--quiet",
+                 "--no-report"]) == 0
+    res = pd.read_csv(tmp_path / "o" / "results.csv")
+    assert res["tol"].tolist() == [1e-9]
+    bad = tmp_path / "bad.toml"
+    bad.write_text('solver = ["bb-pgd"]\n')
+    assert main(["run", "--config", str(bad), "--out", str(tmp_path / "p"), "--quiet"]) == 2
