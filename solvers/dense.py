@@ -1,1 +1,264 @@
-"""Solver family module (being written)."""
+"""Dense-matrix solvers: ``pgs`` (projected Gauss-Seidel / SOR) and ``lemke``.
+
+Both are registered with ``needs_dense=True``: they read the explicit matrix
+``ctx.dense`` (formed once by the framework, uncounted), so they are **not**
+MVP-only methods and their MVP counts are not comparable with those of the
+matrix-free solvers (results carry ``mvp_only = False``). They are classic LCP
+baselines for small problems (Cottle, Pang & Stone, *The Linear
+Complementarity Problem*, 1992; Erleben's Num4LCP), outside the method paper's
+comparison (section "Numerical Results" -> "Comparison Methods" lists only
+matrix-free methods, because there A = D'MD is never formed).
+
+Counting
+--------
+Products with ``ctx.dense`` are not counted by any operator. To keep the counts
+honest and the reported ``w`` independent of the dense sweeps:
+
+* ``pgs``: after every sweep (``n`` row updates, one pass over the matrix,
+  about one MVP of work) ``w = A x + b`` is computed through the counted
+  ``ctx.A``: **one counted MVP per sweep**, which also supplies the ``w``
+  reported to the stop rule.
+* ``lemke``: the pivoting itself uses ``ctx.dense``; the final ``w = A x + b``
+  is computed through ``ctx.A``: **one counted MVP per solve** (none when
+  ``b >= 0``: ``x = 0`` is the solution and ``A 0`` is free).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lcpbench import register_solver
+from lcpbench.context import SolverContext
+from lcpbench.result import SolveResult, Status
+
+__all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
+
+
+@dataclass(frozen=True)
+class PGSParams:
+    """Parameters of pgs.
+
+    Parameters
+    ----------
+    omega : float
+        Relaxation factor in (0, 2): 1 is projected Gauss-Seidel, other values
+        projected SOR (default 1.0).
+    """
+
+    omega: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.omega < 2:
+            raise ValueError(f"omega must be in (0, 2), got {self.omega}")
+
+
+@register_solver("pgs", PGSParams, needs_dense=True)
+def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
+    """Projected Gauss-Seidel / SOR sweeps on the dense matrix (not MVP-only).
+
+    Cottle, Pang & Stone (1992), section 5.2 (projected SOR); a dense baseline
+    outside the method paper's matrix-free comparison ("Comparison Methods").
+    One sweep updates ``x_i <- max(0, x_i - omega (A_i x + b_i) / A_ii)`` for
+    ``i = 1..n`` in order (Gauss-Seidel: the updated entries are used at once).
+    Rows with ``A_ii = 0`` (a zero row of a PSD matrix) get ``x_i = 0`` when
+    ``b_i >= 0``; when ``b_i < 0`` the LCP has no solution and the row is left
+    alone (the stop rule never accepts it). Each sweep costs one counted MVP:
+    ``w = A x + b`` through ``ctx.A`` (see the module docstring); ``info['sweeps']``.
+    """
+    M = ctx.dense
+    b = ctx.b
+    n = ctx.n
+    x = np.maximum(ctx.x0, 0.0)
+    w = ctx.A @ x + b
+    ctx.info["sweeps"] = 0
+    if ctx.report(x, w):
+        return ctx.finish(x, w)
+    diag = np.diag(M).copy()
+    scale = max(float(np.max(np.abs(diag))), np.finfo(float).tiny)
+    live = diag > 1e-14 * scale
+    dead_zero = ~live & (b >= 0)
+    rows = np.flatnonzero(live)
+    inv = np.zeros(n)
+    inv[live] = p.omega / diag[live]
+    while True:
+        x[dead_zero] = 0.0
+        for i in rows:
+            r = float(M[i] @ x) + b[i]
+            xi = x[i] - inv[i] * r
+            x[i] = xi if xi > 0.0 else 0.0
+        ctx.info["sweeps"] += 1
+        w = ctx.A @ x + b
+        if ctx.report(x, w):
+            return ctx.finish(x, w)
+
+
+@dataclass(frozen=True)
+class LemkeParams:
+    """Parameters of lemke.
+
+    Parameters
+    ----------
+    max_pivots : int
+        Pivot limit (0: automatic, ``max(100, 50 n)``); reaching it ends the
+        solve with status ``max_iter``.
+    pivot_tol : float
+        Entries ``d_i`` of the pivot column below this times the rounding
+        scale ``max (|B^-1| |col|)`` of the column are treated as zero in the ratio test (default
+        1e-9: a singular PSD A leaves rounding noise of about cond * eps in
+        directions that are exactly zero, and pivoting on it derails the path).
+    refactor_every : int
+        Recompute the basis inverse from the basis columns every this many
+        pivots (default 20), bounding the drift of the product-form updates.
+    """
+
+    max_pivots: int = 0
+    pivot_tol: float = 1e-9
+    refactor_every: int = 20
+
+    def __post_init__(self) -> None:
+        if self.max_pivots < 0:
+            raise ValueError(f"max_pivots must be >= 0 (0: automatic), got {self.max_pivots}")
+        if not 0 < self.pivot_tol < 1:
+            raise ValueError(f"pivot_tol must be in (0, 1), got {self.pivot_tol}")
+        if self.refactor_every < 1:
+            raise ValueError(f"refactor_every must be >= 1, got {self.refactor_every}")
+
+
+def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.ndarray,
+                   tol: float):
+    """Row index of the lexicographic minimum ratio test, or None (ray).
+
+    ``d_i = (B^-1 col)_i`` counts as positive only above ``tol max_k (|B^-1| |col|)_k``,
+    the scale of the product's rounding: scale-free in A (an A of order 1e-12
+    mixes entries of order 1 and 1e-12 in one column; a threshold relative to
+    ``max |d|`` would drop the small legitimate ones), while exact zeros that
+    rounding turned into 1e-16 (singular A) stay below it.
+    """
+    cand = np.flatnonzero(d > tol * float(np.max(np.abs(Binv) @ np.abs(col))))
+    if cand.size == 0:
+        return None
+    ratios = rhs[cand] / d[cand]
+    best = float(np.min(ratios))
+    near = cand[ratios <= best + 1e-12 * max(1.0, abs(best))]
+    col = 0
+    # Lexicographic tie-break on the rows of B^-1 divided by the pivot entries.
+    while near.size > 1 and col < Binv.shape[1]:
+        vals = Binv[near, col] / d[near]
+        m = float(np.min(vals))
+        near = near[vals <= m + 1e-12 * max(1.0, abs(m))]
+        col += 1
+    return int(near[0])
+
+
+@register_solver("lemke", LemkeParams, needs_dense=True)
+def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
+    """Lemke's complementary pivoting with covering vector e = 1 (not MVP-only).
+
+    Lemke, "Bimatrix equilibrium points and mathematical programming", Manag.
+    Sci. 11 (1965); Cottle, Pang & Stone (1992), section 4.4 (scheme I with the
+    lexicographic rule against degenerate cycling). A dense baseline for small
+    n, outside the method paper's matrix-free comparison ("Comparison Methods").
+
+    Works on ``w - A z - e z0 = b`` with the basis inverse updated by one
+    elementary pivot per step (O(n^2)); the warm start is ignored. ``b >= 0``
+    returns ``x = 0`` at once. For PSD A a secondary ray means the LCP has no
+    solution: the solve ends ``failed`` honestly. At termination the solution
+    is recomputed by a direct solve with the final basis (removing the drift of
+    the updated inverse), then ``w = A x + b`` costs one counted MVP.
+    ``info``: ``pivots``.
+    """
+    M = ctx.dense
+    b = ctx.b
+    n = ctx.n
+    ctx.info["pivots"] = 0
+    if np.all(b >= 0):
+        x = np.zeros(n)
+        w = ctx.A @ x + b                # free: A 0 = 0
+        ctx.report(x, w)
+        return ctx.finish(x, w, Status.converged, "b >= 0: x = 0 solves the LCP")
+    max_piv = p.max_pivots or max(100, 50 * n)
+    # Work on (A/s, b/s), s = max|A_ij|: same solution x, and the tableau's
+    # columns (identity, -A/s, -e) are all of order 1, so one pivot tolerance fits.
+    s = float(np.max(np.abs(M)))
+    s = s if s > 0 else 1.0
+    M = M / s
+    bs = b / s
+    # Columns: 0..n-1 -> w_i (e_i), n..2n-1 -> z_j (-A[:, j]), 2n -> z0 (-e).
+    def column(k: int) -> np.ndarray:
+        if k < n:
+            e = np.zeros(n)
+            e[k] = 1.0
+            return e
+        if k < 2 * n:
+            return -M[:, k - n]
+        return -np.ones(n)
+
+    basis = np.arange(n)               # w basic
+    Binv = np.eye(n)
+    rhs = bs.astype(np.float64).copy()
+    # z0 enters; the most negative b_i leaves (lexicographic ties resolved by index).
+    r = int(np.argmin(bs))
+    entering = 2 * n
+    status, message = None, ""
+    pivots = 0
+    while True:
+        col = column(entering)
+        d = Binv @ col
+        if pivots == 0:
+            row = r                          # first pivot: makes rhs >= 0
+        else:
+            row = _lex_min_ratio(rhs, Binv, d, col, p.pivot_tol)
+            if row is None:
+                status, message = Status.failed, (
+                    f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
+                    "the LCP is infeasible)")
+                break
+        piv = d[row]
+        if piv == 0.0:
+            status, message = Status.failed, "Lemke: zero pivot"
+            break
+        # Elementary pivot on (row, entering).
+        Binv[row] /= piv
+        rhs[row] /= piv
+        other = np.arange(n) != row
+        Binv[other] -= np.outer(d[other], Binv[row])
+        rhs[other] -= d[other] * rhs[row]
+        leaving = int(basis[row])
+        basis[row] = entering
+        pivots += 1
+        rhs = np.maximum(rhs, 0.0) if pivots == 1 else rhs
+        if leaving == 2 * n:
+            break                              # z0 left: complementary basis found
+        if pivots >= max_piv:
+            status, message = Status.max_iter, f"Lemke: pivot limit {max_piv} reached"
+            break
+        entering = leaving + n if leaving < n else leaving - n
+        if pivots % p.refactor_every == 0:
+            try:
+                Binv = np.linalg.inv(np.column_stack([column(int(k)) for k in basis]))
+                rhs = np.maximum(Binv @ bs, 0.0)   # basic variables are >= 0
+            except np.linalg.LinAlgError:
+                pass
+    ctx.info["pivots"] = pivots
+    # Recover z from the final basis by a direct solve (accurate, no drift).
+    Bmat = np.column_stack([column(int(k)) for k in basis])
+    try:
+        sol = np.linalg.solve(Bmat, bs)
+    except np.linalg.LinAlgError:
+        sol = np.linalg.lstsq(Bmat, bs, rcond=None)[0]
+    if not np.all(np.isfinite(sol)):
+        sol = rhs
+    x = np.zeros(n)
+    for k, v in zip(basis, sol):
+        if n <= k < 2 * n:
+            x[k - n] = max(float(v), 0.0)
+    w = ctx.A @ x + b
+    if ctx.report(x, w) and status is None:
+        return ctx.finish(x, w)
+    if status is None:
+        status, message = Status.stagnated, (
+            f"Lemke reached a complementary basis after {pivots} pivots but the residual "
+            "misses the tolerance (rounding in the pivots)")
+    return ctx.finish(x, w, status, message)

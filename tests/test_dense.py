@@ -1,0 +1,105 @@
+"""Dense solvers pgs and lemke: convergence, exactness, honest counts, edge cases."""
+
+import numpy as np
+import pytest
+
+import lcpbench
+from lcpbench import LCP, Status
+
+
+def _planted(n, rank=None, seed=0, cond=100.0):
+    """A PSD LCP with a known complementary solution (SPD when rank is None)."""
+    rng = np.random.default_rng(seed)
+    if rank is None:
+        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        A = (Q * np.logspace(0, np.log10(cond), n)) @ Q.T
+    else:
+        B = rng.standard_normal((n, rank))
+        A = B @ B.T / rank
+    A = (A + A.T) / 2
+    act = rng.random(n) < 0.5
+    xs = np.where(act, rng.random(n) + 0.1, 0.0)
+    ws = np.where(act, 0.0, rng.random(n) + 0.1)
+    return A, ws - A @ xs
+
+
+# ---------------------------------------------------------------------------- pgs
+@pytest.mark.parametrize("omega", [1.0, 1.3])
+@pytest.mark.parametrize("seed", range(2))
+def test_pgs_converges_spd(omega, seed):
+    A, b = _planted(30, seed=seed, cond=20.0)
+    res = lcpbench.solve(A, b, solver=f"pgs:omega={omega}", stop="kkt", tol=1e-9)
+    assert res.status is Status.converged and res.solved, res.summary()
+    assert res.mvp_only is False
+    # x0 = 0: the initial w is free, then exactly one counted MVP per sweep.
+    assert res.mvps == res.info["sweeps"] == res.iterations
+    ref = lcpbench.reference(LCP(A, b))
+    np.testing.assert_allclose(res.w, ref.w, atol=1e-7)
+
+
+def test_pgs_budget_and_warm_start():
+    A, b = _planted(30, seed=3, cond=1e3)
+    res = lcpbench.solve(A, b, solver="pgs", stop="kkt", tol=1e-12, max_emvps=3)
+    assert res.status is Status.max_iter and res.mvps <= 3
+    ref = lcpbench.reference(LCP(A, b))
+    res = lcpbench.solve(A, b, solver="pgs", stop="kkt", tol=1e-7, x0=ref.x)
+    assert res.solved and res.mvps == 1 and res.info["sweeps"] == 0
+
+
+def test_pgs_omega_validated():
+    A, b = _planted(4)
+    with pytest.raises(ValueError):
+        lcpbench.solve(A, b, solver="pgs:omega=2")
+
+
+# ---------------------------------------------------------------------------- lemke
+@pytest.mark.parametrize("n", [1, 2, 5, 20, 60])
+@pytest.mark.parametrize("rank", [None, 3])
+def test_lemke_exact(n, rank):
+    for seed in range(2):
+        A, b = _planted(n, rank=None if rank is None else min(rank, n), seed=seed)
+        if np.all(b >= 0):
+            b[0] = -1.0
+        res = lcpbench.solve(A, b, solver="lemke", stop="kkt", tol=1e-10)
+        assert res.status is Status.converged and res.solved, res.summary()
+        assert res.mvps == 1 and res.mvp_only is False
+        assert res.info["pivots"] >= 1
+        ref = lcpbench.reference(LCP(A, b))
+        scale = max(1.0, np.linalg.norm(ref.w))
+        assert np.linalg.norm(res.w - ref.w) <= 1e-8 * scale
+        assert abs(res.verified["objective"] - ref.objective) <= 1e-9 * max(1.0, abs(ref.objective))
+
+
+@pytest.mark.parametrize("scale", [1e-12, 1e8])
+def test_lemke_scale_free(scale):
+    for rank in (None, 5):
+        A, b = _planted(40, rank=rank, seed=7)
+        res = lcpbench.solve(A * scale, b * scale, solver="lemke", stop="kkt", tol=1e-10 * scale)
+        assert res.status is Status.converged and res.solved, res.summary()
+
+
+def test_lemke_all_inactive_is_immediate():
+    A, b = _planted(6, seed=1)
+    res = lcpbench.solve(A, np.abs(b), solver="lemke")
+    assert res.status is Status.converged and res.mvps == 0 and res.info["pivots"] == 0
+    assert np.all(res.x == 0)
+
+
+def test_lemke_empty_problem():
+    res = lcpbench.solve(np.zeros((0, 0)), np.zeros(0), solver="lemke")
+    assert res.status is Status.converged and res.x.shape == (0,)
+
+
+def test_lemke_ray_termination_reported_as_failure():
+    # w_2 = 0 x + (-1) can never be >= 0: the LCP has no solution.
+    A = np.diag([1.0, 0.0])
+    b = np.array([1.0, -1.0])
+    res = lcpbench.solve(A, b, solver="lemke")
+    assert res.status is Status.failed and "ray" in res.message
+    assert not res.solved
+
+
+def test_lemke_pivot_limit():
+    A, b = _planted(30, seed=0)
+    res = lcpbench.solve(A, b, solver="lemke:max_pivots=2")
+    assert res.status is Status.max_iter and res.info["pivots"] == 2
