@@ -43,7 +43,11 @@ class DiagonalBFGS:
     ----------
     n : int
     memory : int or None
-        Number of pairs kept (oldest dropped first); None keeps all.
+        Number of pairs kept (oldest dropped first); None keeps up to ``n``
+        (``max(n, 1)``): more pairs than unknowns add no curvature information
+        and make the ``2r``-dimensional prox system larger than the problem
+        (on ``spd-cond`` cond 1e10, n = 50, full memory reached r = 184 and took
+        228 s; capped at n it took 2 s and fewer E-MVPs).
     scaling : {"identity", "bb"}
         ``identity``: ``d = 1`` (``H0 = I`` as in algorithm pqn). ``bb``:
         ``d = 1 / (gamma * tau_bb2)`` from the newest pair, as the authors' code
@@ -61,7 +65,7 @@ class DiagonalBFGS:
         if scaling not in ("identity", "bb"):
             raise ValueError(f"scaling must be 'identity' or 'bb', got {scaling!r}")
         self.n = n
-        self.memory = memory
+        self.memory = memory if memory is not None else max(n, 1)
         self.scaling = scaling
         self.gamma = gamma
         self.curvature_tol = curvature_tol

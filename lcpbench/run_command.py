@@ -92,11 +92,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     p = plan(sweep)
     meta = {"argv": ["lcpbench"] + list(args.argv), "config": config,
             "timeout": sweep.timeout, "jobs": args.jobs,
+            "executor": getattr(args, "executor", None) or ("process" if args.jobs > 1 else "local"),
             "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "finished": None, "machine": machine_info(), "git_commit": git_commit(),
             "skipped": p.skipped, "previous": (old or {}).get("started")}
     store.write_meta(meta)
-    counts = execute(p, store, jobs=args.jobs, timeout=sweep.timeout, quiet=quiet)
+    counts = execute(p, store, executor=getattr(args, "executor", None), jobs=args.jobs,
+                     timeout=sweep.timeout, scheduler=getattr(args, "scheduler", None),
+                     quiet=quiet)
     meta["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
     meta["counts"] = counts
     store.write_meta(meta)

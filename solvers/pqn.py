@@ -38,8 +38,8 @@ __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn
 _MONO_DOC = """
     memory : int
         Secant pairs kept in the BFGS model ``B = D + U U' - V V'`` (0: all, up
-        to the iteration cap; the paper uses full memory since it converges in
-        about ten iterations).
+        to the iteration cap and at most n, the oldest dropped beyond n; the
+        paper uses full memory since it converges in about ten iterations).
     scaling : str
         ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
         authors' code does; ``identity``: ``D = I`` as written in algorithm pqn.

@@ -1,0 +1,226 @@
+"""The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``.
+
+Every subcommand returns an exit code; a usage error (unknown solver or
+problem, mistyped parameter, missing file, bad value) is printed as one line on
+stderr and exits with 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Optional, Sequence
+
+import numpy as np
+
+from . import __version__
+from .registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
+from .run_command import add_report_parser, add_run_parser
+
+__all__ = ["main", "build_parser"]
+
+
+def _add_list_parser(sub) -> None:
+    p = sub.add_parser("list", help="registered solvers and problem families with parameters",
+                       description="List every registered solver and problem family, with "
+                                   "their parameters, types, defaults and documentation.")
+    p.add_argument("what", nargs="?", choices=("solvers", "problems", "all"), default="all")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--brief", action="store_true", help="names and summaries only")
+    p.set_defaults(func=cmd_list)
+
+
+def _add_solve_parser(sub) -> None:
+    p = sub.add_parser("solve", help="solve the instances of one problem family with solvers",
+                       description="Generate the instances of a problem family and solve "
+                                   "each with every --solver; prints status, E-MVPs, "
+                                   "verified residual and time per run.")
+    p.add_argument("--problem", default="random-spd", metavar="NAME[:k=v,...]",
+                   help="problem family spec (default random-spd)")
+    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
+                   help="solver spec, repeatable (default mono-pqn)")
+    p.add_argument("--instance", type=int, default=None, metavar="I",
+                   help="solve only instance I of the family (0-based)")
+    p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
+    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
+    p.add_argument("--json", action="store_true", help="one JSON object per solve")
+    p.set_defaults(func=cmd_solve)
+
+
+def _extend_run_parser(sub) -> None:
+    run = sub.choices["run"]
+    run.add_argument("--executor", choices=("local", "process", "dask"), default=None,
+                     help="where runs execute (default: process when --jobs > 1, else local)")
+    run.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                     help="dask scheduler address (with --executor dask; default: a "
+                          "LocalCluster of --jobs workers)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``lcpbench`` command."""
+    parser = argparse.ArgumentParser(
+        prog="lcpbench",
+        description="Benchmark suite and reference solvers for symmetric LCPs "
+                    "(0 <= x _|_ A x + b >= 0) where every product with A is counted.")
+    parser.add_argument("--version", action="version", version=f"lcpbench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_list_parser(sub)
+    _add_solve_parser(sub)
+    add_run_parser(sub)
+    _extend_run_parser(sub)
+    add_report_parser(sub)
+    return parser
+
+
+# ----------------------------------------------------------------------------- list
+
+
+def _entry(info, kind: str) -> dict:
+    out = {"name": info.name, "kind": kind, "summary": info.summary,
+           "params": [{"name": n, "type": t, "default": _jsonable(d), "doc": doc}
+                      for n, t, d, doc in describe_params(info.params)]}
+    if kind == "solver":
+        out.update(needs_dense=info.needs_dense, reference=info.reference,
+                   multifidelity=info.multifidelity)
+    else:
+        out["default"] = info.default
+    return out
+
+
+def _jsonable(v):
+    if isinstance(v, (tuple, list)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    return v
+
+
+def _tags(e: dict) -> str:
+    tags = []
+    if e["kind"] == "solver":
+        if e["reference"]:
+            tags.append("reference")
+        if e["needs_dense"]:
+            tags.append("needs dense A")
+        if e["multifidelity"]:
+            tags.append("multi-fidelity")
+    elif e["default"]:
+        tags.append("default set")
+    return f"  [{', '.join(tags)}]" if tags else ""
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    entries = []
+    if args.what in ("solvers", "all"):
+        entries += [_entry(i, "solver") for _, i in sorted(solvers().items())
+                    if not i.name.startswith("test-")]
+    if args.what in ("problems", "all"):
+        entries += [_entry(i, "problem") for _, i in sorted(problems().items())]
+    if args.json:
+        print(json.dumps(entries, indent=2, default=str))
+        return 0
+    kind = None
+    for e in entries:
+        if e["kind"] != kind:
+            kind = e["kind"]
+            print(f"\n{'Solvers' if kind == 'solver' else 'Problem families'}:")
+        print(f"  {e['name']:<16} {e['summary']}{_tags(e)}")
+        if args.brief:
+            continue
+        for prm in e["params"]:
+            doc = f"  {prm['doc']}" if prm["doc"] else ""
+            print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}{doc}")
+    print("\nUse as NAME:key=value,...  e.g.  bi-pqn:low=p4,inner_rtol=0.01")
+    return 0
+
+
+# ----------------------------------------------------------------------------- solve
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    from .api import run_solver
+    from .context import Budget
+
+    name, raw = parse_spec(args.problem)
+    info = get_problem(name)
+    lcps = info.func(make_params(name, info.params, raw))
+    if args.instance is not None:
+        if not 0 <= args.instance < len(lcps):
+            raise ValueError(f"--instance {args.instance} is out of range: {args.problem} "
+                             f"has {len(lcps)} instance(s), 0..{len(lcps) - 1}")
+        lcps = [lcps[args.instance]]
+    specs = args.solver or ["mono-pqn"]
+    for spec in specs:            # fail on a bad spec before any work
+        sname, sraw = parse_spec(spec)
+        sinfo = solvers().get(sname)
+        make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+    budget = Budget(max_emvps=args.max_emvps)
+    rows = []
+    for lcp in lcps:
+        for spec in specs:
+            if solvers()[parse_spec(spec)[0]].multifidelity and not lcp.low:
+                print(f"lcpbench solve: skipping {spec} on {lcp.name}: the instance has no "
+                      "low-fidelity operators", file=sys.stderr)
+                continue
+            res = run_solver(lcp, spec, stop=args.stop, tol=args.tol, budget=budget)
+            row = {"instance": lcp.name, "n": lcp.n, "solver": spec, "status": res.status.value,
+                   "solved": bool(res.solved), "emvps": round(float(res.emvps), 3),
+                   "mvps": int(res.mvps), "iterations": int(res.iterations),
+                   "verified_kkt_abs": float(res.verified_kkt_abs),
+                   "time_s": round(float(res.time_s), 4), "message": res.message}
+            rows.append(row)
+            if args.json:
+                print(json.dumps(row))
+    if not rows:
+        raise ValueError(f"nothing was solved: {', '.join(specs)} need(s) low-fidelity operators "
+                         f"and {args.problem} has none; try --problem bifidelity")
+    if not args.json:
+        _print_table(rows)
+    return 0
+
+
+def _unknown_solver(name: str):
+    from .registry import get_solver
+    return get_solver(name)        # raises the registry's KeyError with suggestions
+
+
+def _print_table(rows: list[dict]) -> None:
+    from tabulate import tabulate
+
+    cols = ["instance", "n", "solver", "status", "emvps", "iterations", "verified_kkt_abs",
+            "time_s"]
+    print(tabulate([[r[c] for c in cols] for r in rows], headers=cols, floatfmt=".3g"))
+    failed = [r for r in rows if not r["solved"]]
+    if failed:
+        print(f"\n{len(failed)} of {len(rows)} solve(s) did not meet the stop rule "
+              "(status says why; see --json for messages)")
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Entry point of the ``lcpbench`` command; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    args.argv = argv
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("lcpbench: interrupted; rows already written are kept (re-run to resume)",
+              file=sys.stderr)
+        return 130
+    except (KeyError, ValueError, TypeError, FileNotFoundError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        print(f"lcpbench {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
