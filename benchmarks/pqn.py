@@ -21,28 +21,13 @@ import sys
 
 import numpy as np
 
-import lcpbench
-from lcpbench.registry import get_problem, make_params, parse_spec, solvers
-
-HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
-        "bb-cycle"]
-
-
-def instances(spec: str):
-    name, values = parse_spec(spec)
-    info = get_problem(name)
-    return info.func(make_params(name, info.params, values))
+from common import HARD, applicable, instances, progress, run_set, solver_names
 
 
 def medians(solver: str, lcps, tol: float = 1e-8) -> tuple[float, int, int]:
     """Median E-MVPs over verified-solved runs, solved count, run count."""
-    e, ok = [], 0
-    for lcp in lcps:
-        r = lcpbench.solve(lcp, solver=solver, tol=tol)
-        if r.solved:
-            ok += 1
-            e.append(r.emvps)
-    return (float(np.median(e)) if e else float("nan")), ok, len(lcps)
+    r = run_set(solver, lcps, tol)
+    return r["emvps"], r["solved"], r["runs"]
 
 
 def table(quick: bool) -> None:
@@ -51,17 +36,16 @@ def table(quick: bool) -> None:
     sets.update({h: h for h in HARD})
     sets["bifidelity ratio 0.1"] = f"bifidelity:count={k // 2},cost_ratio=0.1"
     sets["bifidelity ratio 0.01"] = f"bifidelity:count={k // 2},cost_ratio=0.01"
-    names = sorted(n for n, i in solvers().items() if i.mvp_only and not i.reference
-                   and not n.startswith("test-"))
+    names = solver_names(mvp_only=True)
     data = {s: {} for s in names}
     for label, spec in sets.items():
         lcps = instances(spec)
         for s in names:
-            if solvers()[s].multifidelity and not all(p.low for p in lcps):
+            if not applicable(s, lcps):
                 data[s][label] = None
                 continue
             data[s][label] = medians(s, lcps)
-            print(f"  {label:40s} {s:16s} {data[s][label]}", file=sys.stderr)
+            progress(f"{label:40s}", f"{s:16s}", data[s][label])
     base = data.get("bb-pgd", {})
     print("| solver | " + " | ".join(sets) + " |")
     print("|---|" + "---|" * len(sets))

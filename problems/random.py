@@ -19,7 +19,8 @@ from lcpbench import LCP, Operator, register_problem
 
 from .hard import random_spd_matrix
 
-__all__ = ["random_spd", "bifidelity"]
+__all__ = ["random_spd", "bifidelity", "symmetric_perturbation", "with_perturbed_lows",
+           "PERTURBED_LOWS"]
 
 
 def _sizes(rng: np.random.Generator, count: int, lo: int, hi: int) -> np.ndarray:
@@ -131,6 +132,43 @@ class BifidelityParams:
             raise ValueError(f"cost_ratio must be > 0, got {self.cost_ratio}")
 
 
+def symmetric_perturbation(rng: np.random.Generator, A: np.ndarray, rel: float) -> np.ndarray:
+    """A symmetric Gaussian matrix ``E`` with ``||E||_2 = rel ||A||_2``."""
+    G = rng.standard_normal(A.shape)
+    E = (G + G.T) / 2
+    nrm = np.linalg.norm(E, 2) if A.size else 0.0
+    return E * (rel * np.linalg.norm(A, 2) / nrm) if nrm > 0 else E
+
+
+#: Low-fidelity levels added by :func:`with_perturbed_lows`: (name, relative error, cost).
+PERTURBED_LOWS = (("low", 1e-3, 0.1), ("lower", 1e-2, 0.01))
+
+
+def with_perturbed_lows(lcp: LCP, seed: int, levels=PERTURBED_LOWS) -> LCP:
+    """``lcp`` with low-fidelity operators ``A + E`` of the given relative errors and costs.
+
+    Parameters
+    ----------
+    lcp : LCP
+        An instance with an explicit (or small) high-fidelity matrix.
+    seed : int
+        Seed of the perturbations.
+    levels : sequence of (str, float, float)
+        ``(name, ||E||_2 / ||A||_2, declared cost)``; the high operator gets cost 1.
+
+    Returns
+    -------
+    LCP
+        Same ``b``, name and meta, with the low operators attached.
+    """
+    A = lcp.dense()
+    rng = np.random.default_rng(seed)
+    low = {name: Operator(A + symmetric_perturbation(rng, A, rel), cost=cost, name=name)
+           for name, rel, cost in levels}
+    return LCP(Operator(A, cost=1.0), lcp.b, low=low, name=lcp.name, meta=lcp.meta,
+               psd_check=False)
+
+
 @register_problem("bifidelity", BifidelityParams, default=True)
 def bifidelity(p: BifidelityParams) -> list[LCP]:
     """SPD LCPs with a low-fidelity operator ``A_low = A + E`` named ``"low"``.
@@ -146,10 +184,7 @@ def bifidelity(p: BifidelityParams) -> list[LCP]:
         rng = np.random.default_rng([p.seed, i])
         A = random_spd_matrix(rng, p.n, p.cond) / p.cond
         b = rng.standard_normal(p.n)
-        G = rng.standard_normal((p.n, p.n))
-        E = (G + G.T) / 2
-        nrm = np.linalg.norm(E, 2)
-        E = E * (p.rel_error / nrm) if nrm > 0 else E
+        E = symmetric_perturbation(rng, A, p.rel_error)
         if p.indefinite:
             lam, V = np.linalg.eigh(A)
             v = V[:, 0]

@@ -1,0 +1,48 @@
+"""Helpers shared by the benchmark scripts: instance sets and per-solver medians."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+import lcpbench
+from lcpbench.registry import get_problem, make_params, parse_spec, solvers
+
+HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
+        "bb-cycle"]
+
+
+def instances(spec: str):
+    """The LCP instances of a problem spec ``name[:k=v,...]``."""
+    name, values = parse_spec(spec)
+    info = get_problem(name)
+    return info.func(make_params(name, info.params, values))
+
+
+def run_set(solver: str, lcps, tol: float = 1e-8) -> dict:
+    """Solve every instance; medians of E-MVPs and solver seconds over verified-solved runs."""
+    e, t, ok = [], [], 0
+    for lcp in lcps:
+        r = lcpbench.solve(lcp, solver=solver, tol=tol)
+        if r.solved:
+            ok += 1
+            e.append(r.emvps)
+            t.append(r.time_s)
+    return {"emvps": float(np.median(e)) if e else float("nan"),
+            "time_s": float(np.median(t)) if t else float("nan"), "solved": ok, "runs": len(lcps)}
+
+
+def solver_names(*, mvp_only: bool) -> list[str]:
+    """Registered solvers (test doubles excluded); only MVP-only non-reference ones if asked."""
+    return sorted(n for n, i in solvers().items() if not n.startswith("test-")
+                  and (not mvp_only or (i.mvp_only and not i.reference)))
+
+
+def applicable(solver: str, lcps) -> bool:
+    """Multi-fidelity solvers run only where every instance has a low-fidelity operator."""
+    return not solvers()[parse_spec(solver)[0]].multifidelity or all(p.low for p in lcps)
+
+
+def progress(*parts) -> None:
+    print("  " + " ".join(str(p) for p in parts), file=sys.stderr, flush=True)
