@@ -192,9 +192,18 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     --------
     >>> import numpy as np, lcpbench
     >>> A = np.array([[2.0, 1.0], [1.0, 2.0]]); b = np.array([-1.0, 1.0])
+    >>> res = lcpbench.solve(A, b)                          # Mono-PQN
+    >>> res.status.value, res.solved, np.round(res.x, 6).tolist()
+    ('converged', True, [0.5, 0.0])
+
+    The paper's stop rule also ends on a small relative change of the KKT
+    error; the status then says so and the run does not count as solved:
+
     >>> res = lcpbench.solve(A, b, solver="bb-pgd")
-    >>> res.status.value, np.round(res.x, 6).tolist()
-    ('converged', [0.5, 0.0])
+    >>> res.status.value, res.solved
+    ('stagnated', False)
+    >>> lcpbench.solve(A, b, solver="bb-pgd", stop="kkt").solved
+    True
     """
     if isinstance(A_or_lcp, LCP):
         if b is not None or low is not None:
