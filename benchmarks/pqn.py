@@ -58,7 +58,8 @@ def table(quick: bool) -> None:
                 continue
             med, ok, n = v
             ratio = ""
-            if base.get(label) and np.isfinite(base[label][0]) and np.isfinite(med):
+            if base.get(label) and np.isfinite(base[label][0]) and base[label][0] > 0 \
+                    and np.isfinite(med):
                 ratio = f" ({med / base[label][0]:.2f}x)"
             cells.append(f"{med:.1f}{ratio} [{ok}/{n}]")
         print(f"| {s} | " + " | ".join(cells) + " |")

@@ -17,6 +17,7 @@ import numpy as np
 from . import __version__
 from .registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
 from .run_command import add_report_parser, add_run_parser
+from .store import StoreLocked
 
 __all__ = ["main", "build_parser"]
 
@@ -216,7 +217,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("lcpbench: interrupted; rows already written are kept (re-run to resume)",
               file=sys.stderr)
         return 130
-    except (KeyError, ValueError, TypeError, FileNotFoundError) as exc:
+    except (KeyError, ValueError, TypeError, FileNotFoundError, StoreLocked) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
         print(f"lcpbench {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -9,6 +9,9 @@ not from glue code.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import warnings
 from typing import Optional
 
@@ -26,6 +29,24 @@ QP_BACKENDS = {
     "osqp": ("osqp", lambda tol: dict(eps_abs=tol, eps_rel=tol, max_iter=200000, polish=True,
                                      adaptive_rho=True)),
 }
+
+
+@contextlib.contextmanager
+def _c_stdout_silenced():
+    """Send file descriptor 1 to /dev/null: OSQP's C code prints even with verbose off."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):          # no real stdout (e.g. captured): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def solve_nonneg_qp(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-12,
@@ -47,7 +68,7 @@ def solve_nonneg_qp(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-
     n = A.shape[0]
     P = sp.csc_matrix(A) if name in ("clarabel", "osqp") else A
     prob = Problem(P=P, q=np.asarray(b, dtype=np.float64), lb=np.zeros(n))
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _c_stdout_silenced():
         warnings.simplefilter("ignore")
         sol = solve_problem(prob, solver=name, initvals=x0, verbose=False, **opts(tol))
     status = ""

@@ -15,6 +15,9 @@ a list (``low=[p3,p4]``).
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
+import os
+import sys
 import difflib
 import typing
 from dataclasses import dataclass
@@ -136,10 +139,40 @@ def register_problem(name: str, params: type, *, default: bool = False):
     return deco
 
 
+#: Environment variable naming extra plugin modules or ``.py`` files (comma-separated),
+#: imported when the registry first loads: for solvers and problems that are not packaged
+#: with entry points (a script's own solver, test doubles). Dask workers and forked
+#: children inherit it, so such plugins are known wherever runs execute.
+PLUGINS_ENV = "LCPBENCH_PLUGINS"
+
+
+def _load_env_plugins() -> None:
+    for item in filter(None, (s.strip() for s in os.environ.get(PLUGINS_ENV, "").split(","))):
+        try:
+            if item.endswith(".py"):
+                path = os.path.abspath(item)
+                name = os.path.splitext(os.path.basename(path))[0]
+                if name in sys.modules:
+                    continue
+                spec = importlib.util.spec_from_file_location(name, path)
+                if spec is None or spec.loader is None:
+                    raise ImportError(f"cannot import {path}")
+                mod = importlib.util.module_from_spec(spec)
+                sys.modules[name] = mod
+                spec.loader.exec_module(mod)
+            else:
+                importlib.import_module(item)
+        except Exception as exc:
+            raise RuntimeError(f"plugin {item!r} named in ${PLUGINS_ENV} failed to load: "
+                               f"{exc}") from exc
+
+
 def _load(group: str) -> None:
     if _LOADED[group]:
         return
     _LOADED[group] = True
+    if group == "lcpbench.solvers":
+        _load_env_plugins()
     eps = entry_points(group=group)
     if not eps:
         raise RuntimeError(

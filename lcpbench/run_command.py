@@ -78,6 +78,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("reports") / f"run-{stamp}"
     store = RunStore(out)
+    with store.lock():
+        return _run_locked(args, sweep, store, out)
+
+
+def _run_locked(args: argparse.Namespace, sweep: Sweep, store: RunStore, out: Path) -> int:
     old = store.read_meta()
     config = sweep.config()
     if old is not None and old.get("config") != config and not args.force:

@@ -9,6 +9,7 @@ open. ``meta.json`` is written atomically (temporary file, then rename).
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
 import json
 import os
@@ -19,7 +20,7 @@ import pandas as pd
 
 from .result import HISTORY_COLUMNS
 
-__all__ = ["RunStore", "RESULT_COLUMNS", "HISTORY_STORE_COLUMNS", "atomic_write"]
+__all__ = ["RunStore", "RunLock", "StoreLocked", "RESULT_COLUMNS", "HISTORY_STORE_COLUMNS", "atomic_write"]
 
 #: Columns of ``results.csv``, in order.
 RESULT_COLUMNS = [
@@ -43,6 +44,62 @@ def atomic_write(path: Path, text: str) -> None:
         fh.flush()
         os.fsync(fh.fileno())
     os.replace(tmp, path)
+
+
+class StoreLocked(RuntimeError):
+    """Another runner holds the folder's lock."""
+
+
+class RunLock:
+    """An exclusive ``flock`` on ``DIR/.lock`` held while one runner writes ``DIR``.
+
+    A second runner pointed at the same folder fails at once with a message
+    naming the holder's PID instead of interleaving rows. The kernel drops the
+    lock when its holder exits, however it exits (``kill -9`` included), so a
+    stale lock cannot block a resume. Children forked for runs close their copy
+    of the descriptor, so a run outliving a killed runner does not keep the lock.
+    """
+
+    _held: list = []
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.fd: Optional[int] = None
+
+    def __enter__(self) -> "RunLock":
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise StoreLocked(
+                f"{self.path.parent} is being written by another lcpbench run (pid {holder}); "
+                "wait for it to finish, or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd = fd
+        RunLock._held.append(fd)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.fd is not None:
+            RunLock._held.remove(self.fd)
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
+
+
+def _close_held_locks_in_child() -> None:
+    for fd in RunLock._held:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    RunLock._held.clear()
+
+
+os.register_at_fork(after_in_child=_close_held_locks_in_child)
 
 
 def _repair_tail(path: Path) -> int:
@@ -81,6 +138,11 @@ class RunStore:
         self.history_path = self.path / "history.csv"
         self.meta_path = self.path / "meta.json"
         self.repaired = _repair_tail(self.results_path) + _repair_tail(self.history_path)
+
+    # ------------------------------------------------------------------ lock
+    def lock(self) -> "RunLock":
+        """Exclusive writer lock on this folder (see :class:`RunLock`)."""
+        return RunLock(self.path / ".lock")
 
     # ------------------------------------------------------------------ meta
     def read_meta(self) -> Optional[dict]:

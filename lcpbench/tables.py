@@ -6,7 +6,6 @@ returns a DataFrame sorted deterministically, so two reports diff cleanly.
 
 from __future__ import annotations
 
-import json
 import warnings
 
 import numpy as np

@@ -80,10 +80,6 @@ def _validate(self) -> None:
         raise ValueError(f"refine_steps must be an integer >= 0, got {self.refine_steps!r}")
 
 
-def _kkt(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
-    return float(np.linalg.norm(np.minimum(x, A @ x + b)))
-
-
 def make_reference_solver(backend: str, default_tol: float) -> Callable:
     """Register the reference solver ``backend`` (a key of :data:`lcpbench.qp.QP_BACKENDS`).
 

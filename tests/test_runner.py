@@ -1,49 +1,16 @@
 """lcpbench run: sweep expansion, store, resume, timeouts, failure rows, report."""
 
 import json
-import os
 import re
-import time
-from dataclasses import dataclass
 
-import numpy as np
 import pandas as pd
 import pytest
 
-import lcpbench
-from lcpbench import executors, register_solver
-from lcpbench.registry import make_params
-from lcpbench.result import Status
+import misbehave_plugin  # noqa: F401  (registers test-misbehave)
+from lcpbench import executors
 from lcpbench.store import HISTORY_STORE_COLUMNS, RESULT_COLUMNS, RunStore
 from lcpbench.sweep import Sweep, expand
 from lcpbench.runner import execute, plan
-
-
-@dataclass(frozen=True)
-class _Mode:
-    """Parameters of the misbehaving test solver.
-
-    Parameters
-    ----------
-    mode : str
-        sleep, raise, nan or die.
-    """
-
-    mode: str = "sleep"
-
-
-@register_solver("test-misbehave", _Mode)
-def _misbehave(ctx, p):
-    """A solver that misbehaves on purpose."""
-    if p.mode == "sleep":
-        time.sleep(60)                 # ignores every budget: only a kill stops it
-    if p.mode == "raise":
-        raise RuntimeError("boom on purpose")
-    if p.mode == "die":
-        os._exit(3)
-    x = np.full(ctx.n, np.nan)
-    ctx.report(x, x)
-    return ctx.finish(x, x)
 
 
 SMALL = "fathi:sizes=[4,6]"

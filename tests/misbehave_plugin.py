@@ -1,0 +1,58 @@
+"""A solver that misbehaves on purpose, for the runner's fault tests.
+
+Imported by the tests directly and, on Dask workers, through ``LCPBENCH_PLUGINS``
+(which names this file), so the same ``test-misbehave`` exists everywhere.
+"""
+
+import ctypes
+import faulthandler
+import os
+import signal
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from lcpbench import register_solver
+
+
+@dataclass(frozen=True)
+class MisbehaveParams:
+    """Parameters of the misbehaving test solver.
+
+    Parameters
+    ----------
+    mode : str
+        sleep (ignores every budget), raise, nan, die (exit code 3), kill (SIGKILL to
+        itself), segv (a real segmentation fault), slow (solves after a short sleep).
+    seconds : float
+        Sleep of ``slow``.
+    """
+
+    mode: str = "sleep"
+    seconds: float = 0.2
+
+
+@register_solver("test-misbehave", MisbehaveParams)
+def misbehave(ctx, p):
+    """A solver that misbehaves on purpose."""
+    if p.mode == "sleep":
+        time.sleep(60)
+    if p.mode == "raise":
+        raise RuntimeError("boom on purpose")
+    if p.mode == "die":
+        os._exit(3)
+    if p.mode == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    if p.mode == "segv":
+        faulthandler.disable()          # pytest's handler would print a traceback dump
+        ctypes.string_at(0)
+    if p.mode == "slow":
+        time.sleep(p.seconds)
+        x = np.zeros(ctx.n)
+        w = ctx.A @ x + ctx.b
+        ctx.report(x, w)
+        return ctx.finish(x, w)
+    x = np.full(ctx.n, np.nan)
+    ctx.report(x, x)
+    return ctx.finish(x, x)
