@@ -141,6 +141,11 @@ class SolverContext:
             return 0.0
         return time.perf_counter() - self._t0 - self.monitor.seconds
 
+    @property
+    def threshold(self) -> float:
+        """The absolute residual ``||min(x, w)||`` at which the stop rule declares convergence."""
+        return self._threshold
+
     def emvps(self) -> float:
         return self.lcp.emvps()
 
