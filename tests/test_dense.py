@@ -2,32 +2,17 @@
 
 import numpy as np
 import pytest
+from lcp_cases import planted
 
 import lcpbench
 from lcpbench import LCP, Status
-
-
-def _planted(n, rank=None, seed=0, cond=100.0):
-    """A PSD LCP with a known complementary solution (SPD when rank is None)."""
-    rng = np.random.default_rng(seed)
-    if rank is None:
-        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-        A = (Q * np.logspace(0, np.log10(cond), n)) @ Q.T
-    else:
-        B = rng.standard_normal((n, rank))
-        A = B @ B.T / rank
-    A = (A + A.T) / 2
-    act = rng.random(n) < 0.5
-    xs = np.where(act, rng.random(n) + 0.1, 0.0)
-    ws = np.where(act, 0.0, rng.random(n) + 0.1)
-    return A, ws - A @ xs
 
 
 # ---------------------------------------------------------------------------- pgs
 @pytest.mark.parametrize("omega", [1.0, 1.3])
 @pytest.mark.parametrize("seed", range(2))
 def test_pgs_converges_spd(omega, seed):
-    A, b = _planted(30, seed=seed, cond=20.0)
+    A, b = planted(30, seed=seed, cond=20.0)
     res = lcpbench.solve(A, b, solver=f"pgs:omega={omega}", stop="kkt", tol=1e-9)
     assert res.status is Status.converged and res.solved, res.summary()
     assert res.mvp_only is False
@@ -38,7 +23,7 @@ def test_pgs_converges_spd(omega, seed):
 
 
 def test_pgs_budget_and_warm_start():
-    A, b = _planted(30, seed=3, cond=1e3)
+    A, b = planted(30, seed=3, cond=1e3)
     res = lcpbench.solve(A, b, solver="pgs", stop="kkt", tol=1e-12, max_emvps=3)
     assert res.status is Status.max_iter and res.mvps <= 3
     ref = lcpbench.reference(LCP(A, b))
@@ -47,7 +32,7 @@ def test_pgs_budget_and_warm_start():
 
 
 def test_pgs_omega_validated():
-    A, b = _planted(4)
+    A, b = planted(4)
     with pytest.raises(ValueError):
         lcpbench.solve(A, b, solver="pgs:omega=2")
 
@@ -57,7 +42,7 @@ def test_pgs_omega_validated():
 @pytest.mark.parametrize("rank", [None, 3])
 def test_lemke_exact(n, rank):
     for seed in range(2):
-        A, b = _planted(n, rank=None if rank is None else min(rank, n), seed=seed)
+        A, b = planted(n, rank=None if rank is None else min(rank, n), seed=seed)
         if np.all(b >= 0):
             b[0] = -1.0
         res = lcpbench.solve(A, b, solver="lemke", stop="kkt", tol=1e-10)
@@ -73,13 +58,13 @@ def test_lemke_exact(n, rank):
 @pytest.mark.parametrize("scale", [1e-12, 1e8])
 def test_lemke_scale_free(scale):
     for rank in (None, 5):
-        A, b = _planted(40, rank=rank, seed=7)
+        A, b = planted(40, rank=rank, seed=7)
         res = lcpbench.solve(A * scale, b * scale, solver="lemke", stop="kkt", tol=1e-10 * scale)
         assert res.status is Status.converged and res.solved, res.summary()
 
 
 def test_lemke_all_inactive_is_immediate():
-    A, b = _planted(6, seed=1)
+    A, b = planted(6, seed=1)
     res = lcpbench.solve(A, np.abs(b), solver="lemke")
     assert res.status is Status.converged and res.mvps == 0 and res.info["pivots"] == 0
     assert np.all(res.x == 0)
@@ -100,6 +85,6 @@ def test_lemke_ray_termination_reported_as_failure():
 
 
 def test_lemke_pivot_limit():
-    A, b = _planted(30, seed=0)
+    A, b = planted(30, seed=0)
     res = lcpbench.solve(A, b, solver="lemke:max_pivots=2")
     assert res.status is Status.max_iter and res.info["pivots"] == 2

@@ -2,25 +2,10 @@
 
 import numpy as np
 import pytest
+from lcp_cases import planted
 
 import lcpbench
 from lcpbench import LCP, Operator, Status
-
-
-def _planted(n, rank=None, seed=0, cond=100.0):
-    """A PSD LCP with a known complementary solution (SPD when rank is None)."""
-    rng = np.random.default_rng(seed)
-    if rank is None:
-        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-        A = (Q * np.logspace(0, np.log10(cond), n)) @ Q.T
-    else:
-        B = rng.standard_normal((n, rank))
-        A = B @ B.T / rank
-    A = (A + A.T) / 2
-    act = rng.random(n) < 0.5
-    xs = np.where(act, rng.random(n) + 0.1, 0.0)
-    ws = np.where(act, 0.0, rng.random(n) + 0.1)
-    return A, ws - A @ xs
 
 
 class _Recorder:
@@ -39,7 +24,7 @@ class _Recorder:
 
 @pytest.mark.parametrize("seed", range(3))
 def test_converges_spd(seed):
-    A, b = _planted(40, seed=seed)
+    A, b = planted(40, seed=seed)
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-7)
     assert res.status is Status.converged and res.solved, res.summary()
     assert not res.false_convergence
@@ -47,7 +32,7 @@ def test_converges_spd(seed):
 
 
 def test_singular_psd_solved_or_honest():
-    A, b = _planted(40, rank=10, seed=1)
+    A, b = planted(40, rank=10, seed=1)
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-6)
     assert res.solved, res.summary()
     ref = lcpbench.reference(LCP(A, b))
@@ -56,7 +41,7 @@ def test_singular_psd_solved_or_honest():
 
 def test_paper_rule_reached_thanks_to_restarts():
     for seed in range(3):
-        A, b = _planted(50, seed=seed, cond=1e3)
+        A, b = planted(50, seed=seed, cond=1e3)
         res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="paper", tol=1e-8)
         assert res.status is Status.converged and res.solved, res.summary()
         assert not res.false_convergence
@@ -65,7 +50,7 @@ def test_paper_rule_reached_thanks_to_restarts():
 def test_plain_scipy_stalls_honestly():
     # Without restarts the rounding of f stops scipy short of 1e-8: the status
     # must say so (stagnated, scipy's message), never "converged".
-    A, b = _planted(60, seed=0)
+    A, b = planted(60, seed=0)
     res = lcpbench.solve(A, b, solver="l-bfgs-b:max_restarts=0", stop="paper", tol=1e-8)
     assert res.status is Status.stagnated and not res.solved, res.summary()
     assert "L-BFGS-B" in res.message and res.info["restarts"] == 0
@@ -74,7 +59,7 @@ def test_plain_scipy_stalls_honestly():
 
 
 def test_one_mvp_per_distinct_evaluation():
-    A, b = _planted(30, seed=4)
+    A, b = planted(30, seed=4)
     rec = _Recorder(A)
     lcp = LCP(Operator(rec, shape=A.shape), b)
     res = lcpbench.solve(lcp, solver="l-bfgs-b", stop="kkt", tol=1e-7)
@@ -91,7 +76,7 @@ def test_one_mvp_per_distinct_evaluation():
 
 
 def test_reported_w_belongs_to_reported_x():
-    A, b = _planted(30, seed=5)
+    A, b = planted(30, seed=5)
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-7)
     h = res.history
     np.testing.assert_allclose(h["kkt_abs"], h["kkt_abs_verified"], rtol=1e-6, atol=1e-12)
@@ -99,20 +84,20 @@ def test_reported_w_belongs_to_reported_x():
 
 
 def test_budget_honoured():
-    A, b = _planted(40, seed=2, cond=1e3)
+    A, b = planted(40, seed=2, cond=1e3)
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-12, max_emvps=5)
     assert res.status is Status.max_iter
     assert res.mvps <= 5
 
 
 def test_warm_start_from_solution_is_cheap():
-    A, b = _planted(30, seed=6)
+    A, b = planted(30, seed=6)
     ref = lcpbench.reference(LCP(A, b))
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-7, x0=ref.x)
     assert res.solved and res.mvps == 1, res.summary()
 
 
 def test_parameters_validated():
-    A, b = _planted(5)
+    A, b = planted(5)
     with pytest.raises(ValueError):
         lcpbench.solve(A, b, solver="l-bfgs-b:memory=0")

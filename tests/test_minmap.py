@@ -2,26 +2,10 @@
 
 import numpy as np
 import pytest
+from lcp_cases import planted
 
 import lcpbench
 from lcpbench import LCP, Status
-
-
-def _planted(n, rank=None, seed=0, cond=100.0):
-    """A PSD LCP with a known complementary solution (SPD when rank is None)."""
-    rng = np.random.default_rng(seed)
-    if rank is None:
-        Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-        A = (Q * np.logspace(0, np.log10(cond), n)) @ Q.T
-    else:
-        B = rng.standard_normal((n, rank))
-        A = B @ B.T / rank
-    A = (A + A.T) / 2
-    act = rng.random(n) < 0.5
-    xs = np.where(act, rng.random(n) + 0.1, 0.0)
-    ws = np.where(act, 0.0, rng.random(n) + 0.1)
-    return A, ws - A @ xs
-
 
 COUNTERS = ("newton_iterations", "krylov_mvps", "ls_mvps", "backtracks", "fallbacks",
             "ls_failures", "retries")
@@ -30,7 +14,7 @@ COUNTERS = ("newton_iterations", "krylov_mvps", "ls_mvps", "backtracks", "fallba
 @pytest.mark.parametrize("krylov", ["gmres", "cg", "minres"])
 @pytest.mark.parametrize("seed", range(2))
 def test_converges_spd(krylov, seed):
-    A, b = _planted(40, seed=seed)
+    A, b = planted(40, seed=seed)
     res = lcpbench.solve(A, b, solver=f"minmap-newton:krylov={krylov}", stop="kkt", tol=1e-9)
     assert res.status is Status.converged and res.solved, res.summary()
     for k in COUNTERS:
@@ -43,7 +27,7 @@ def test_converges_spd(krylov, seed):
 @pytest.mark.parametrize("krylov", ["gmres", "cg", "minres"])
 def test_regularised_singular_psd(krylov):
     for seed in range(3):
-        A, b = _planted(40, rank=10, seed=seed)
+        A, b = planted(40, rank=10, seed=seed)
         res = lcpbench.solve(A, b, solver=f"minmap-newton:krylov={krylov},reg=0.1",
                              stop="kkt", tol=1e-8)
         assert res.solved, res.summary()
@@ -52,7 +36,7 @@ def test_regularised_singular_psd(krylov):
 def test_fallback_counted_on_singular_problem():
     # Unregularised Newton on a rank-10 PSD matrix: J is singular, some Newton
     # directions do not descend and the gradient fallback takes over.
-    A, b = _planted(50, rank=10, seed=0)
+    A, b = planted(50, rank=10, seed=0)
     res = lcpbench.solve(A, b, solver="minmap-newton:krylov=cg", stop="kkt", tol=1e-8)
     assert res.info["fallbacks"] >= 1
     assert res.solved, res.summary()
@@ -61,7 +45,7 @@ def test_fallback_counted_on_singular_problem():
 @pytest.mark.parametrize("projection", ["always", "retry", "never"])
 def test_projection_modes(projection):
     for seed in range(2):
-        A, b = _planted(40, seed=seed)
+        A, b = planted(40, seed=seed)
         res = lcpbench.solve(A, b, solver=f"minmap-newton:projection={projection}",
                              stop="kkt", tol=1e-9)
         assert res.solved, res.summary()
@@ -73,28 +57,28 @@ def test_projection_modes(projection):
 
 
 def test_reported_w_is_exact():
-    A, b = _planted(30, seed=3)
+    A, b = planted(30, seed=3)
     res = lcpbench.solve(A, b, solver="minmap-newton:krylov=cg", stop="kkt", tol=1e-9)
     h = res.history
     np.testing.assert_allclose(h["kkt_abs"], h["kkt_abs_verified"], rtol=1e-6, atol=1e-12)
 
 
 def test_budget_honoured():
-    A, b = _planted(40, seed=1)
+    A, b = planted(40, seed=1)
     res = lcpbench.solve(A, b, solver="minmap-newton", stop="kkt", tol=1e-12, max_emvps=15)
     assert res.status is Status.max_iter
     assert res.mvps <= 15
 
 
 def test_warm_start_from_solution():
-    A, b = _planted(30, seed=2)
+    A, b = planted(30, seed=2)
     ref = lcpbench.reference(LCP(A, b))
     res = lcpbench.solve(A, b, solver="minmap-newton", stop="kkt", tol=1e-7, x0=ref.x)
     assert res.solved and res.mvps == 1 and res.iterations == 0, res.summary()
 
 
 def test_all_inactive_is_free():
-    A, b = _planted(10, seed=0)
+    A, b = planted(10, seed=0)
     res = lcpbench.solve(A, np.abs(b) + 1.0, solver="minmap-newton", stop="kkt")
     assert res.solved and res.mvps == 0
 
@@ -102,6 +86,6 @@ def test_all_inactive_is_free():
 @pytest.mark.parametrize("bad", ["krylov=bicg", "inner_tol=0", "alpha=1", "beta=0",
                                  "max_backtracks=-1", "reg=-1", "projection=maybe"])
 def test_parameters_validated(bad):
-    A, b = _planted(5)
+    A, b = planted(5)
     with pytest.raises((ValueError, TypeError)):
         lcpbench.solve(A, b, solver=f"minmap-newton:{bad}")

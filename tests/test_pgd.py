@@ -2,21 +2,18 @@
 
 import numpy as np
 import pytest
+from lcp_cases import planted
+from lcpbench.problems.hard import random_spd_matrix
+from lcpbench.solvers.pgd import power_iteration
+from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 import lcpbench
 from lcpbench import LCP, Operator
 from lcpbench.registry import get_problem, make_params
-from lcpbench.solvers.pgd import power_iteration
-from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
-from lcpbench.problems.hard import planted_b, random_spd_matrix
 
 
 def _planted(seed, n=60, cond=50.0):
-    rng = np.random.default_rng(seed)
-    A = random_spd_matrix(rng, n, cond)
-    x = np.where(rng.random(n) < 0.5, rng.uniform(0.1, 1, n), 0.0)
-    w = np.where(x > 0, 0.0, rng.uniform(0.1, 1, n))
-    return A, planted_b(A, x, w), x
+    return planted(n, seed=seed, cond=cond, solution=True)
 
 
 def _family(name, **params):
