@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/baselines.py            # the table of docs/benchmarks.md
     python benchmarks/baselines.py --quick    # 5 random instances instead of 20
+    python benchmarks/baselines.py --safeguard  # BB-PGD's nonmonotone safeguards compared
 
 Sets: (i) random SPD with condition number 10..100 and n 150..300
 (``random-spd``), (ii) every hard-case family with its default parameters.
@@ -20,18 +21,43 @@ from __future__ import annotations
 
 import argparse
 
+from common import HARD, instances, progress, run_set, solver_names
 from lcpbench.problems.random import with_perturbed_lows
+
+import lcpbench
 from lcpbench.registry import solvers
 
-from common import HARD, instances, progress, run_set, solver_names
-
 MULTI_SPECS = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}
+
+
+SAFEGUARDS = ["bb-pgd", "bb-pgd:safeguard=true", "bb-pgd:safeguard=true,reference=gll",
+              "bb-pgd:safeguard=true,reference=gll,memory=10",
+              "bb-pgd:safeguard=true,memory=10"]
+
+
+def safeguard_study() -> None:
+    """E-MVPs of BB-PGD's safeguards per instance of spd-cond and bb-cycle (budget 20000)."""
+    print("| instance | cond | " + " | ".join(SAFEGUARDS) + " |")
+    print("|---|---|" + "---|" * len(SAFEGUARDS))
+    for family in ("spd-cond", "bb-cycle"):
+        for lcp in instances(family):
+            cells = []
+            for spec in SAFEGUARDS:
+                r = lcpbench.solve(lcp, solver=spec, max_emvps=20000, max_iter=20000)
+                cells.append(f"{r.emvps:.0f}" if r.solved else f"- ({r.status.value})")
+            print(f"| {lcp.name} | {lcp.meta.get('cond', float('nan')):.0e} | "
+                  + " | ".join(cells) + " |", flush=True)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="5 random instances instead of 20")
+    ap.add_argument("--safeguard", action="store_true",
+                    help="only the study of BB-PGD's nonmonotone safeguards")
     args = ap.parse_args()
+    if args.safeguard:
+        safeguard_study()
+        return
     k = 5 if args.quick else 20
     sets = {f"random-spd ({k})": f"random-spd:count={k}"}
     sets.update({h: h for h in HARD})
