@@ -14,8 +14,9 @@ from .context import Budget, Monitor, SolverContext, StopSolver
 from .lcp import LCP
 from .operator import BudgetExhausted, Operator
 from .reference import Reference, reference
-from .registry import (get_problem, get_solver, parse_spec, problems, register_problem,
-                       register_solver, solvers)
+from .registry import get_problem, get_solver, parse_spec, register_problem, register_solver
+from .registry import problems as list_problems
+from .registry import solvers as list_solvers
 from .residuals import StopRule
 from .result import SolveResult, Status
 
@@ -24,6 +25,6 @@ __version__ = "0.1.0"
 __all__ = [
     "LCP", "Operator", "Budget", "Monitor", "SolverContext", "StopSolver", "BudgetExhausted",
     "StopRule", "SolveResult", "Status", "solve", "run_solver", "DEFAULT_SOLVER", "reference",
-    "Reference", "register_solver", "register_problem", "get_solver", "get_problem", "solvers",
-    "problems", "parse_spec", "__version__",
+    "Reference", "register_solver", "register_problem", "get_solver", "get_problem",
+    "list_problems", "list_solvers", "parse_spec", "__version__",
 ]

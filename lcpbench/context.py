@@ -20,6 +20,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 import pandas as pd
+from scipy.sparse.linalg import LinearOperator, eigsh
 
 from .lcp import LCP
 from .operator import BudgetExhausted, Operator, apply_uncounted
@@ -233,6 +234,27 @@ class SolverContext:
     def last(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
         """The last finite reported ``(x, w)``, or None."""
         return self._last
+
+    def oracle_spectrum(self) -> tuple[float, float]:
+        """``(lambda_max, max(lambda_min, 0))`` of ``A`` from the framework's oracle.
+
+        For solvers whose source grants the spectral constants as known (the
+        paper's A-PGD). The products are uncounted -- the framework's, not the
+        solver's -- so the solve is flagged with ``info['oracle_constants']``:
+        its E-MVPs understate what it would cost without the oracle. Dense
+        eigenvalues up to n = 1000, Lanczos (``eigsh``) beyond.
+        """
+        n = self.n
+        self.info["oracle_constants"] = True
+        if n <= 1000:
+            D = apply_uncounted(self.A, np.eye(n))
+            ev = np.linalg.eigvalsh((D + D.T) / 2)
+            return float(ev[-1]), float(max(ev[0], 0.0))
+        op = LinearOperator((n, n), matvec=lambda v: apply_uncounted(self.A, v),
+                            dtype=np.float64)
+        hi = float(eigsh(op, k=1, which="LA", tol=1e-8, return_eigenvectors=False)[0])
+        lo = float(eigsh(op, k=1, which="SA", tol=1e-8, return_eigenvectors=False)[0])
+        return hi, max(lo, 0.0)
 
     # ------------------------------------------------------------------ results
     def finish(self, x: np.ndarray, w: np.ndarray, status: Optional[Status] = None,

@@ -23,11 +23,9 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench import register_solver
 from lcpbench.context import SolverContext
-from lcpbench.operator import apply_uncounted
 from lcpbench.result import SolveResult, Status
 
 __all__ = ["BBPGDParams", "APGDParams", "bb_pgd", "a_pgd", "power_iteration"]
@@ -302,19 +300,6 @@ def power_iteration(apply, n: int, iters: int, seed: int = 0) -> float:
     return est
 
 
-def _oracle_constants(ctx: SolverContext) -> tuple[float, float]:
-    """Exact ``lambda_max``, ``max(lambda_min, 0)`` of ``A`` from uncounted products."""
-    n = ctx.n
-    if n <= 1000:
-        A = apply_uncounted(ctx.A, np.eye(n))
-        ev = np.linalg.eigvalsh((A + A.T) / 2)
-        return float(ev[-1]), float(max(ev[0], 0.0))
-    op = LinearOperator((n, n), matvec=lambda v: apply_uncounted(ctx.A, v), dtype=np.float64)
-    hi = float(eigsh(op, k=1, which="LA", tol=1e-8, return_eigenvectors=False)[0])
-    lo = float(eigsh(op, k=1, which="SA", tol=1e-8, return_eigenvectors=False)[0])
-    return hi, max(lo, 0.0)
-
-
 @register_solver("a-pgd", APGDParams)
 def a_pgd(ctx: SolverContext, p: APGDParams) -> SolveResult:
     """Accelerated projected gradient (FISTA, Beck & Teboulle 2009) with step ``1/L``.
@@ -341,8 +326,7 @@ def a_pgd(ctx: SolverContext, p: APGDParams) -> SolveResult:
     L, mu = p.L, p.mu
     if L == 0.0:
         if p.constants == "oracle":
-            L, mu = _oracle_constants(ctx)
-            ctx.info["oracle_constants"] = True
+            L, mu = ctx.oracle_spectrum()
         else:
             before = ctx.A.count
             L = p.power_safety * power_iteration(lambda v: ctx.A @ v, n, p.power_iters, p.seed)
