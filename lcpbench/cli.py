@@ -1,4 +1,4 @@
-"""The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``.
+"""The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``, ``simulate``.
 
 Every subcommand returns an exit code; a usage error (unknown solver or
 problem, mistyped parameter, missing file, bad value) is printed as one line on
@@ -50,6 +50,32 @@ def _add_solve_parser(sub) -> None:
     p.set_defaults(func=cmd_solve)
 
 
+def _add_simulate_parser(sub) -> None:
+    p = sub.add_parser("simulate", help="online run: simulate a scene once per solver",
+                       description="Simulate a scene (e.g. lattice:m=3,model=rpy) once per "
+                                   "--solver with forward Euler, one LCP per time step, and "
+                                   "write a row per step (kind=online) to the run store DIR; "
+                                   "`lcpbench report DIR` renders the online table.")
+    p.add_argument("--scene", default="lattice:m=3,model=rpy", metavar="NAME[:k=v,...]",
+                   help="scene spec (default lattice:m=3,model=rpy; low=[self] adds a "
+                        "low-fidelity operator for multi-fidelity solvers)")
+    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
+                   help="solver spec, repeatable: one simulation each (default bb-pgd)")
+    p.add_argument("--steps", type=int, default=50, help="time steps per simulation (default 50)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="run-store folder (default reports/simulate-<time>)")
+    p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
+    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
+    p.add_argument("--overlap-tol", type=float, default=None,
+                   help="largest acceptable overlap after a step, as a fraction of the "
+                        "smallest radius (default 0.01)")
+    p.add_argument("--no-warm-start", action="store_true",
+                   help="start every solve from zero instead of the previous step's forces")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_simulate)
+
+
 def _extend_run_parser(sub) -> None:
     run = sub.choices["run"]
     run.add_argument("--executor", choices=("local", "process", "dask"), default=None,
@@ -72,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_run_parser(sub)
     _extend_run_parser(sub)
     add_report_parser(sub)
+    _add_simulate_parser(sub)
     return parser
 
 
@@ -197,6 +224,33 @@ def _print_table(rows: list[dict]) -> None:
     if failed:
         print(f"\n{len(failed)} of {len(rows)} solve(s) did not meet the stop rule "
               "(status says why; see --json for messages)")
+
+
+# ----------------------------------------------------------------------------- simulate
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from datetime import datetime
+    from pathlib import Path
+
+    from .simulate import DEFAULT_OVERLAP_TOL, simulate
+
+    out = Path(args.out) if args.out else \
+        Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    rows = simulate(args.scene, args.solver or ["bb-pgd"], args.steps, out,
+                    warm_start=not args.no_warm_start, progress=not args.quiet, tol=args.tol,
+                    stop=args.stop, max_emvps=args.max_emvps,
+                    overlap_tol=DEFAULT_OVERLAP_TOL if args.overlap_tol is None
+                    else args.overlap_tol,
+                    argv=["lcpbench"] + list(getattr(args, "argv", [])))
+    for solver, g in rows.groupby("solver", sort=False):
+        solved = int(g["solved"].astype(bool).sum())
+        print(f"{solver}: {len(g)} step(s), {solved} solved, median n "
+              f"{float(g['n'].median()):.0f}, median E-MVPs {float(g['emvps'].median()):.2f}, "
+              f"collision {float(g['time_s'].sum()):.3g} s of {float(g['sim_total_s'].sum()):.3g}"
+              f" s, max overlap {float(g['max_overlap'].max()):.3g}")
+    print(f"results: {out / 'results.csv'}")
+    return 0
 
 
 # ----------------------------------------------------------------------------- main

@@ -1,0 +1,246 @@
+"""Online runs: one simulation of a scene per solver, a result row per time step.
+
+The solution of step ``k`` moves the spheres and so defines the LCP of step
+``k + 1``; each solver therefore runs its own simulation from the same initial
+configuration. Every step is written to the run store as soon as it is done
+(``results.csv`` with ``kind = "online"``, its iterates to ``history.csv``), so
+``lcpbench report DIR`` shows the paper's online table: total and
+collision-resolution seconds per scene and solver, E-MVPs per step.
+
+Row columns specific to online runs: ``step``; ``time_s`` the collision
+resolution seconds (the solve); ``sim_total_s`` the whole step (contacts,
+mobility, ``U_nc``, fidelity cost timing, solve, verification, update);
+``max_overlap`` the largest overlap of two spheres after the step; a run
+without warm start is labelled ``"<solver> (cold)"`` so the online table keeps
+it apart from the warm-started one. ``info``
+holds the rest (setup and update seconds, mobility solves outside the counted
+MVPs, warm-start entries, overlap check).
+
+Physical sanity: a step whose overlap exceeds ``overlap_tol`` (a fraction of
+the smallest radius) is flagged in ``message`` and ``info``; for frictionless
+spheres the linearised constraint is conservative (the true gap is at least
+its linearisation), so overlap only appears when a pair outside the candidate
+set closes more than ``delta`` in one step: a sign that ``dt`` is too large.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import pandas as pd
+
+from .context import Budget
+from .registry import get_solver, make_params, parse_spec
+from .residuals import make_stop_rule
+from .store import RunStore
+
+__all__ = ["simulate", "DEFAULT_OVERLAP_TOL"]
+
+#: Default overlap tolerance, as a fraction of the smallest radius.
+DEFAULT_OVERLAP_TOL = 1e-2
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _check_solver(spec: str, has_low: bool, scene_spec: str):
+    name, raw = parse_spec(spec)
+    info = get_solver(name)
+    make_params(name, info.params, raw)
+    if info.multifidelity and not has_low:
+        raise ValueError(f"solver {spec!r} needs low-fidelity operators but scene {scene_spec!r} "
+                         "has none; add low=[...] to the scene, e.g. "
+                         f"{scene_spec.split(':')[0]}:...,low=[self]")
+    if info.needs_dense:
+        print(f"lcpbench simulate: note: {name} forms A densely (n uncounted mobility solves "
+              "per step); its E-MVPs are not comparable to MVP-only solvers", file=sys.stderr)
+    return name, info
+
+
+def _run_id(scene: str, solver: str, warm: bool, step: int) -> str:
+    return f"online|{scene}|{solver}|warm={int(warm)}|step={step:05d}"
+
+
+def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int,
+             out_dir: Union[str, Path], *, warm_start: bool = True, progress: bool = True,
+             tol: float = 1e-8, stop: str = "paper", max_emvps: float = 5000.0,
+             max_seconds: Optional[float] = None,
+             overlap_tol: float = DEFAULT_OVERLAP_TOL,
+             argv: Optional[Sequence[str]] = None) -> pd.DataFrame:
+    """Simulate ``scene_spec`` once per solver and store a row per step.
+
+    Parameters
+    ----------
+    scene_spec : str
+        Scene, e.g. ``lattice:m=3,model=rpy,low=[self]`` (see
+        :class:`lcpbench.problems.suspension.scene.LatticeParams`).
+    solver_spec : str or list of str
+        One or more solver specs (``bi-pqn:low=self``, ``bb-pgd``); each runs
+        its own simulation.
+    steps : int
+        Time steps per simulation (>= 1).
+    out_dir : str or Path
+        Run-store folder (created if missing). Several scenes may be simulated
+        into one folder; a scene/solver pair already in it is an error.
+    warm_start : bool
+        Start each solve from the previous step's forces matched by pair identity.
+    progress : bool
+        Show a tqdm progress bar per simulation (on stderr).
+    tol, stop : stop rule of every solve (``paper`` or ``kkt``).
+    max_emvps, max_seconds : budget of each solve.
+    overlap_tol : float
+        Largest acceptable overlap after a step, as a fraction of the smallest radius.
+    argv : list of str, optional
+        Command line recorded in ``meta.json``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The rows written (one per step and solver).
+
+    Raises
+    ------
+    KeyError, TypeError, ValueError
+        Unknown scene or solver, bad parameter, ``steps < 1``, a solver that
+        needs low-fidelity operators on a scene without them, or a scene/solver
+        pair already stored in ``out_dir``. All checked before any step runs.
+    """
+    from tqdm.auto import tqdm
+
+    from lcpbench.problems.suspension.scene import make_scene
+
+    from .runner import git_commit, machine_info
+
+    if isinstance(solver_spec, str):
+        solver_spec = [solver_spec]
+    specs = [str(s).strip() for s in solver_spec]
+    if not specs:
+        raise ValueError("no solver given; pass at least one --solver NAME[:k=v,...]")
+    if len(set(specs)) != len(specs):
+        raise ValueError(f"solver list {specs} repeats a spec; each solver runs one simulation")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps = {steps!r} must be an integer >= 1")
+    overlap_tol = float(overlap_tol)
+    if not (np.isfinite(overlap_tol) and overlap_tol >= 0):
+        raise ValueError(f"overlap_tol = {overlap_tol} must be a finite non-negative fraction "
+                         "of the radius")
+    make_stop_rule(stop, tol)
+    budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds)
+    scene_spec = str(scene_spec).strip()
+    probe = make_scene(scene_spec)                 # validates the scene before any work
+    scene_name = parse_spec(scene_spec)[0]
+    infos = {s: _check_solver(s, bool(probe.params.low), scene_spec) for s in specs}
+
+    store = RunStore(out_dir)
+    with store.lock():
+        done = store.done_ids()
+        for s in specs:
+            if _run_id(scene_spec, s, warm_start, 0) in done:
+                raise ValueError(f"{store.path} already holds the simulation of {scene_spec!r} "
+                                 f"with {s!r}; choose another --out or another scene/solver")
+        old = store.read_meta() or {}
+        config = {"scene": scene_spec, "solvers": specs, "steps": int(steps), "tol": tol,
+                  "stop": stop, "warm_start": bool(warm_start), "max_emvps": max_emvps,
+                  "max_seconds": max_seconds, "overlap_tol": overlap_tol,
+                  "scene_params": dataclasses.asdict(probe.params)}
+        meta = dict(old)
+        meta.update({"argv": list(argv) if argv is not None else meta.get("argv", []),
+                     "command": "simulate", "started": _now(), "finished": None,
+                     "machine": machine_info(), "git_commit": git_commit()})
+        meta.setdefault("config", config)
+        sims = list(meta.get("simulations", []))
+        sims.append(config)
+        meta["simulations"] = sims
+        store.write_meta(meta)
+        frames = []
+        for spec in specs:
+            scene = probe if spec == specs[0] else make_scene(scene_spec)
+            name, info = infos[spec]
+            frames.append(_one_simulation(
+                store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
+                tol, stop, budget, overlap_tol, progress, tqdm))
+        meta["finished"] = _now()
+        store.write_meta(meta)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, spec: str,
+                    name: str, info, steps: int, warm_start: bool, tol: float, stop: str,
+                    budget: Budget, overlap_tol: float, progress: bool, tqdm) -> pd.DataFrame:
+    rule = make_stop_rule(stop, tol)
+    limit = overlap_tol * float(np.min(scene.radii))
+    solver_params = json.dumps(parse_spec(spec)[1], sort_keys=True)
+    problem_params = json.dumps(dataclasses.asdict(scene.params), sort_keys=True, default=str)
+    rows = []
+    bar = tqdm(total=steps, desc=f"{scene_spec} | {spec}", disable=not progress,
+               file=sys.stderr, leave=False)
+    try:
+        for _ in range(steps):
+            started = _now()
+            k = scene.step_index
+            try:
+                rec = scene.step(spec, tol=tol, stop=stop, budget=budget,
+                                 warm_start=warm_start)
+            except ValueError as exc:  # diverged forces or a configuration the model rejects
+                row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, k, tol,
+                                rule.kind, solver_params, problem_params)
+                row.update({"status": "failed", "message": f"simulation stopped: {exc}",
+                            "solved": False, "started": started, "finished": _now()})
+                store.append(row)
+                rows.append(row)
+                print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
+                break
+            res = rec.result
+            v = res.verified
+            over = rec.max_overlap > limit
+            message = res.message or ""
+            if over:
+                message = (f"{message}; " if message else "") + (
+                    f"overlap {rec.max_overlap:.3g} after the step exceeds the tolerance "
+                    f"{limit:.3g}: reduce dt or raise delta")
+            extra = {"setup_s": rec.setup_s, "update_s": rec.update_s,
+                     "setup_solves": rec.setup_solves, "update_solves": rec.update_solves,
+                     "warm_entries": rec.warm_entries,
+                     "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
+                     **(res.info or {})}
+            row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, rec.step, tol,
+                            rule.kind, solver_params, problem_params)
+            row.update({
+                "n": rec.n, "status": res.status.value, "message": message,
+                "solved": bool(res.solved), "false_convergence": bool(res.false_convergence),
+                "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
+                "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
+                "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
+                "threshold": res.threshold, "mvps": res.mvps,
+                "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
+                "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
+                "iterations": res.iterations, "time_s": res.time_s,
+                "mvp_time_s": res.mvp_time_s, "sim_total_s": rec.total_s,
+                "max_overlap": rec.max_overlap,
+                "info": json.dumps(extra, sort_keys=True, default=str),
+                "started": started, "finished": _now()})
+            store.append(row, res.history)
+            rows.append(row)
+            bar.set_postfix(n=rec.n, emvps=f"{res.emvps:.1f}", status=res.status.value)
+            bar.update(1)
+    finally:
+        bar.close()
+    return pd.DataFrame(rows)
+
+
+def _row_base(scene_spec: str, scene_name: str, spec: str, name: str, info, warm: bool,
+              step: int, tol: float, stop: str, solver_params: str, problem_params: str) -> dict:
+    return {"run_id": _run_id(scene_spec, spec, warm, step), "kind": "online",
+            "problem": scene_spec, "problem_params": problem_params, "family": scene_name,
+            "instance": f"step{step}", "instance_index": step, "n": 0,
+            "solver": spec if warm else f"{spec} (cold)",
+            "solver_name": name, "solver_params": solver_params, "mvp_only": info.mvp_only,
+            "multifidelity": info.multifidelity, "reference_solver": info.reference,
+            "tol": tol, "stop": stop, "repeat": 0, "step": step}

@@ -1,0 +1,456 @@
+"""The lattice scene: Janus-like spheres packing into a cluster, one LCP per time step.
+
+Initialisation (appendix "Initialization Procedure" of the method paper): the
+``m x m x m`` sphere centres are put on a lattice centred at the origin,
+``spacing`` radii apart, moved by uniform jitter of width ``jitter`` radii, and
+the whole configuration is scaled by the factor ``gamma`` found by bisection so
+that about ``m^3 / 2`` pairs are candidate contacts (gap ``<= delta``), within
+``m^3 / 10``. The number of candidate pairs is non-increasing in ``gamma``;
+the search is kept above the scale at which two spheres would touch, so the
+initial configuration never overlaps. (The paper's algorithm listing moves
+``gamma`` the wrong way on one branch; this is the bisection it describes.)
+With strong polydispersity the window may need overlapping spheres; the scale
+then stops just above touching, with fewer pairs than desired
+(``LatticeScene.initial_pairs`` says how many).
+
+Driving model (the least that reproduces the paper's workload of ``n >= M``
+contacts as Janus particles cluster to hide their hydrophobic sides): every
+sphere ``i`` carries a unit orientation ``o_i`` (its hydrophobic pole),
+initially pointing at the centroid ``c_bar`` of the configuration. With
+``t_i = -(c_i - c_bar) / max(|c_i - c_bar|, a_i)`` (a pull direction that
+fades inside one radius of the centroid) and its unit vector ``t^_i``:
+
+* force  ``F_i = 6 pi mu a_i * force * (1 + o_i . t^_i) / 2 * t_i``: a pull
+  towards the centroid, strongest when the hydrophobic pole faces inwards;
+  ``force`` is the free-sphere drift speed in length per unit time;
+* torque ``T_i = 8 pi mu a_i^3 * torque * (o_i x t^_i)``: turns the pole
+  towards the centroid at rate ``torque`` (1 / time) for a free sphere.
+
+Orientations follow the rotational velocity, ``o <- o + dt Omega x o``
+(renormalised). The cluster that forms is dense, so after a few dozen steps the
+LCPs have more contacts than spheres, as in the paper's time steps 201-250.
+
+Time stepping is forward Euler: each step builds the contact LCP of
+:mod:`.contacts`, solves it with the given solver, and moves the spheres with
+``U = U_nc + M D x``; the product ``M D x`` is the one the framework made
+when verifying the solve, so the update needs no extra mobility solve.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Optional, Union
+
+import numpy as np
+from scipy.spatial.distance import pdist
+
+from lcpbench.registry import make_params, parse_spec
+
+from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
+from .geometry import pair_gaps
+
+__all__ = ["LatticeParams", "LatticeScene", "StepRecord", "lattice_configuration",
+           "bisect_scale", "make_scene", "SCENES"]
+
+
+@dataclass(frozen=True)
+class LatticeParams:
+    """Parameters of the lattice scene (CLI: ``lattice:m=3,model=rpy,dt=0.1``).
+
+    Parameters
+    ----------
+    m : int
+        Lattice side: ``M = m^3`` spheres (>= 1).
+    p : int
+        Spherical-harmonic order of the boundary-integral mobility (model bim).
+    model : str
+        High-fidelity mobility: ``rpy``, ``bim`` or ``self`` (no interactions).
+    eps_gmres : float
+        GMRES tolerance of the boundary-integral mobility.
+    radius : float
+        Mean sphere radius.
+    polydisperse : float
+        Radii uniform in ``radius * [1 - polydisperse, 1 + polydisperse]`` (0 <= . < 1).
+    dt : float
+        Time step (> 0).
+    delta : float
+        Candidate-contact gap threshold (>= 0); keep it above the largest
+        relative displacement per step (about ``2 * force * dt``).
+    seed : int
+        Seed of the jitter, radii and the centre sphere's orientation.
+    mu : float
+        Viscosity.
+    low : list of str
+        Low-fidelity operators per LCP (``rpy``, ``self``, ``p4``, ``p4e6``, ...).
+    force : float
+        Free-sphere drift speed of the centroid pull (length / time).
+    torque : float
+        Free-sphere alignment rate of the hydrophobic pole (1 / time).
+    spacing : float
+        Lattice spacing before scaling, in radii.
+    jitter : float
+        Width of the uniform jitter of each coordinate before scaling, in radii.
+    target : float
+        Desired candidate pairs per sphere at the start (paper: 1/2).
+    """
+
+    m: int = 3
+    p: int = 8
+    model: str = "rpy"
+    eps_gmres: float = 1e-8
+    radius: float = 1.0
+    polydisperse: float = 0.0
+    dt: float = 0.1
+    delta: float = 0.3
+    seed: int = 0
+    mu: float = 1.0
+    low: tuple[str, ...] = ()
+    force: float = 1.0
+    torque: float = 1.0
+    spacing: float = 3.0
+    jitter: float = 0.5
+    target: float = 0.5
+
+    def __post_init__(self) -> None:
+        def bad(name, why):
+            raise ValueError(f"{name} = {getattr(self, name)!r} {why}")
+
+        if not isinstance(self.m, (int, np.integer)) or self.m < 1:
+            bad("m", "must be an integer >= 1 (the lattice has m^3 spheres)")
+        if self.p < 1:
+            bad("p", "must be >= 1 (spherical-harmonic order)")
+        if self.model not in ("rpy", "bim", "self"):
+            bad("model", "is unknown; use rpy, bim or self")
+        for name in ("dt", "radius", "mu", "spacing"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                bad(name, "must be a finite positive number")
+        if not (0 < self.eps_gmres < 1):
+            bad("eps_gmres", "must lie in (0, 1)")
+        for name in ("delta", "force", "torque", "jitter", "target"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0):
+                bad(name, "must be a finite non-negative number")
+        if not (0 <= self.polydisperse < 1):
+            bad("polydisperse", "must lie in [0, 1) (relative spread of the radii)")
+        for name in self.low:
+            parse_fidelity(name, self.p, self.eps_gmres)
+
+
+@dataclass
+class StepRecord:
+    """What one time step did.
+
+    Attributes
+    ----------
+    step : int
+        0-based step index.
+    n : int
+        Contacts in the step's LCP.
+    result : SolveResult
+        The solve (counted MVPs, E-MVPs, verified residuals, time).
+    x : ndarray
+        Contact forces used for the update.
+    pairs : ndarray, shape (n, 2)
+        Pair identities of the contacts.
+    setup_s, update_s, total_s : float
+        Seconds building the LCP (contacts, mobility, ``U_nc``, cost timing),
+        moving the spheres, and the whole step.
+    max_overlap : float
+        Largest overlap of any two spheres after the step (0 if none).
+    min_gap : float
+        Smallest gap among the step's contacts before the step (nan if none).
+    setup_solves, update_solves : int
+        Mobility solves outside the solver's counted MVPs.
+    warm_entries : int
+        Non-zero entries of the warm start carried from the previous step.
+    """
+
+    step: int
+    n: int
+    result: Any
+    x: np.ndarray
+    pairs: np.ndarray
+    setup_s: float
+    update_s: float
+    total_s: float
+    max_overlap: float
+    min_gap: float
+    setup_solves: int
+    update_solves: int
+    warm_entries: int = 0
+
+
+def lattice_configuration(m: int, spacing: float, jitter: float,
+                          rng: np.random.Generator) -> np.ndarray:
+    """``m^3`` lattice points ``spacing`` apart, centred at the origin, plus uniform jitter.
+
+    The jitter of each coordinate is uniform in ``[-jitter / 2, jitter / 2]``.
+    """
+    ax = (np.arange(m) - (m - 1) / 2.0) * spacing
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    P = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    return P + rng.uniform(-jitter / 2.0, jitter / 2.0, size=P.shape)
+
+
+def bisect_scale(points: np.ndarray, radii: np.ndarray, delta: float, n_desired: float,
+                 n_window: float, max_iter: int = 200) -> tuple[float, int]:
+    """Scale ``gamma`` with ``|pairs(gamma * points)|`` in ``n_desired +- n_window``.
+
+    Parameters
+    ----------
+    points : ndarray, shape (M, 3)
+        Unscaled centres (centred at the origin).
+    radii : ndarray, shape (M,)
+    delta : float
+        Candidate-pair gap threshold.
+    n_desired, n_window : float
+        Target count and half-width of the accepted window.
+
+    Returns
+    -------
+    gamma : float
+        The scale; never below the touching scale (no two spheres overlap or touch).
+    count : int
+        Candidate pairs at ``gamma``. When no scale hits the window (e.g. a jump
+        of the count across it, or the window needs overlapping spheres) the
+        closest count found is returned.
+    """
+    M = len(points)
+    if M < 2:
+        return 1.0, 0
+
+    def count(g: float) -> int:
+        return int(len(pair_gaps(g * points, radii, delta)[0]))
+
+    iu = np.triu_indices(M, 1)
+    touch = float(np.max((radii[iu[0]] + radii[iu[1]]) / pdist(points)))
+    lo = touch * (1.0 + 1e-9)
+    hi = max(1.0, 2.0 * lo)
+    while count(hi) > 0:
+        hi *= 2.0
+    lo_n, hi_n = n_desired - n_window, n_desired + n_window
+    best = (abs(count(lo) - n_desired), -lo, lo, count(lo))
+    if count(lo) < lo_n:          # fewer pairs than desired even at touching distance
+        return lo, count(lo)
+    for _ in range(max_iter):
+        mid = 0.5 * (lo + hi)
+        c = count(mid)
+        best = min(best, (abs(c - n_desired), -mid, mid, c))
+        if lo_n <= c <= hi_n:
+            return mid, c
+        if c > hi_n:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-13 * hi:
+            break
+    return best[2], best[3]
+
+
+class LatticeScene:
+    """A lattice of Janus-like spheres packing into a cluster (see the module docs).
+
+    Parameters
+    ----------
+    m : int
+        Lattice side (``M = m^3`` spheres).
+    params : LatticeParams, optional
+        All parameters at once (then ``m`` and keywords are not used).
+    **kwargs
+        Any other field of :class:`LatticeParams` (``p``, ``model``,
+        ``eps_gmres``, ``radius``, ``polydisperse``, ``dt``, ``delta``, ``seed``,
+        ``mu``, ``low``, ``force``, ``torque``, ...).
+
+    Attributes
+    ----------
+    centers, orientations : ndarray, shape (M, 3)
+        Current state.
+    radii : ndarray, shape (M,)
+    gamma : float
+        Scale found by the initial bisection.
+    initial_pairs : int
+        Candidate pairs of the initial configuration.
+    step_index : int
+        Steps taken so far.
+    """
+
+    def __init__(self, m: int = 3, *, params: Optional[LatticeParams] = None, **kwargs):
+        if params is not None and kwargs:
+            raise TypeError(f"LatticeScene: pass either params= or keyword parameters, not "
+                            f"both (got params and {sorted(kwargs)})")
+        self.params = params if params is not None else LatticeParams(m=m, **kwargs)
+        P = self.params
+        rng = np.random.default_rng(P.seed)
+        M = P.m ** 3
+        self.radii = P.radius * (1.0 + P.polydisperse * rng.uniform(-1.0, 1.0, M))
+        pts = lattice_configuration(P.m, P.spacing * P.radius, P.jitter * P.radius, rng)
+        pts -= pts.mean(axis=0)
+        self.gamma, self.initial_pairs = bisect_scale(pts, self.radii, P.delta,
+                                                      P.target * M, M / 10.0)
+        self.centers = self.gamma * pts
+        rel = self.centers - self.centers.mean(axis=0)
+        dist = np.linalg.norm(rel, axis=1)
+        o = np.empty_like(rel)
+        inner = dist < 1e-12 * P.radius
+        o[~inner] = -rel[~inner] / dist[~inner, None]
+        if inner.any():
+            r = rng.normal(size=(int(inner.sum()), 3))
+            o[inner] = r / np.linalg.norm(r, axis=1, keepdims=True)
+        self.orientations = o
+        self.step_index = 0
+        self._prev_pairs = np.empty((0, 2), dtype=np.intp)
+        self._prev_x = np.empty(0)
+        self._problem: Optional[ContactProblem] = None
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_params(cls, params: LatticeParams) -> "LatticeScene":
+        """A scene from a parameter dataclass."""
+        return cls(params=params)
+
+    @classmethod
+    def from_spec(cls, spec: str) -> "LatticeScene":
+        """A scene from ``lattice:m=3,model=rpy,...``."""
+        scene = make_scene(spec)
+        if not isinstance(scene, cls):
+            raise ValueError(f"{spec!r} is not a lattice scene")
+        return scene
+
+    @property
+    def M(self) -> int:
+        """Number of spheres."""
+        return int(len(self.centers))
+
+    # ------------------------------------------------------------------ physics
+    def loads(self) -> tuple[np.ndarray, np.ndarray]:
+        """External forces and torques ``(F, T)``, each ``(M, 3)``, of the Janus model."""
+        P = self.params
+        a = self.radii
+        rel = self.centers - self.centers.mean(axis=0)
+        dist = np.linalg.norm(rel, axis=1)
+        t = -rel / np.maximum(dist, a)[:, None]
+        that = np.zeros_like(t)
+        nz = dist > 0
+        that[nz] = -rel[nz] / dist[nz, None]
+        align = 0.5 * (1.0 + np.sum(self.orientations * that, axis=1))
+        F = (6.0 * np.pi * P.mu * a * P.force * align)[:, None] * t
+        T = (8.0 * np.pi * P.mu * a ** 3 * P.torque)[:, None] * np.cross(self.orientations, that)
+        return F, T
+
+    def warm_start(self, problem: ContactProblem) -> np.ndarray:
+        """The previous step's forces carried to ``problem``'s contacts by pair identity."""
+        return problem.contacts.carry(self._prev_pairs, self._prev_x)
+
+    def build(self, warm_start: bool = True) -> ContactProblem:
+        """The current step's contact problem (contacts, mobility, ``U_nc``, LCP)."""
+        P = self.params
+        F, T = self.loads()
+        problem = build_contact_problem(
+            self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, model=P.model, p=P.p,
+            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low, name=f"lattice-m{P.m}-step{self.step_index}",
+            meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
+        if warm_start and problem.contacts.n:
+            x0 = self.warm_start(problem)
+            if np.any(x0):
+                problem.lcp.x0 = x0
+        self._problem = problem
+        return problem
+
+    def advance(self, problem: ContactProblem, x: np.ndarray) -> tuple[float, int]:
+        """Move the spheres one forward Euler step with contact forces ``x``.
+
+        Returns
+        -------
+        max_overlap : float
+            Largest overlap of two spheres after the step.
+        solves : int
+            Mobility solves the update needed (0 when ``M D x`` was cached).
+
+        Raises
+        ------
+        ValueError
+            ``x`` is not finite or has the wrong length (the state is unchanged).
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"step {self.step_index}: the contact forces are not finite; "
+                             "the simulation cannot continue from a diverged solve")
+        before = problem.extra_solves
+        U = problem.velocities(np.maximum(x, 0.0)).reshape(self.M, 6)
+        dt = self.params.dt
+        self.centers = self.centers + dt * U[:, :3]
+        o = self.orientations + dt * np.cross(U[:, 3:], self.orientations)
+        self.orientations = o / np.linalg.norm(o, axis=1, keepdims=True)
+        self._prev_pairs = problem.contacts.pairs.copy()
+        self._prev_x = np.maximum(x, 0.0)
+        self.step_index += 1
+        return max_overlap(self.centers, self.radii), problem.extra_solves - before
+
+    def step(self, solver: str = "bb-pgd", *, tol: float = 1e-8, stop: str = "paper",
+             budget=None, warm_start: bool = True, params: Optional[dict] = None
+             ) -> StepRecord:
+        """Build, solve and advance one step.
+
+        Parameters
+        ----------
+        solver : str
+            Registered solver spec, e.g. ``bi-pqn:low=rpy``.
+        tol, stop : stop rule of the solve.
+        budget : lcpbench.context.Budget, optional
+        warm_start : bool
+            Start from the previous step's forces matched by pair identity.
+        params : dict, optional
+            Extra solver parameters.
+
+        Returns
+        -------
+        StepRecord
+        """
+        from lcpbench.api import run_solver
+
+        t0 = time.perf_counter()
+        problem = self.build(warm_start)
+        t1 = time.perf_counter()
+        lcp = problem.lcp
+        res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, params=params)
+        t2 = time.perf_counter()
+        step = self.step_index
+        overlap, solves = self.advance(problem, res.x)
+        t3 = time.perf_counter()
+        return StepRecord(step=step, n=lcp.n, result=res, x=np.asarray(res.x, float),
+                          pairs=problem.contacts.pairs.copy(), setup_s=t1 - t0,
+                          update_s=t3 - t2, total_s=t3 - t0, max_overlap=overlap,
+                          min_gap=float(problem.contacts.gaps.min()) if lcp.n else float("nan"),
+                          setup_solves=problem.setup_solves, update_solves=solves,
+                          warm_entries=0 if lcp.x0 is None else int(np.count_nonzero(lcp.x0)))
+
+    def __repr__(self) -> str:
+        P = self.params
+        return (f"<LatticeScene m={P.m} M={self.M} model={P.model!r} step={self.step_index} "
+                f"gamma={self.gamma:.4g} initial_pairs={self.initial_pairs}>")
+
+
+#: Scene families: name -> (parameter dataclass, factory from parameters).
+SCENES: dict[str, tuple[type, Any]] = {"lattice": (LatticeParams, LatticeScene.from_params)}
+
+
+def make_scene(spec: Union[str, LatticeParams]) -> LatticeScene:
+    """A scene from ``NAME:key=value,...`` (e.g. ``lattice:m=3,model=rpy``).
+
+    Raises
+    ------
+    KeyError
+        Unknown scene name (the known ones are listed).
+    TypeError, ValueError
+        Unknown or invalid parameter (named).
+    """
+    if isinstance(spec, LatticeParams):
+        return LatticeScene.from_params(spec)
+    name, raw = parse_spec(spec)
+    if name not in SCENES:
+        raise KeyError(f"unknown scene {name!r}; known: {', '.join(sorted(SCENES))} "
+                       "(e.g. lattice:m=3,model=rpy)")
+    cls, factory = SCENES[name]
+    return factory(make_params(name, cls, raw))
