@@ -15,7 +15,9 @@ def test_list_json_has_every_solver_and_problem_with_parameters(capsys):
     assert main(["list", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     names = {e["name"] for e in data}
-    assert set(lcpbench.list_solvers()) <= names and set(lcpbench.list_problems()) <= names
+    # solvers registered by other test modules in this process are listed too, or hidden
+    registered = {n for n in lcpbench.list_solvers() if not n.startswith("test-")}
+    assert registered <= names and set(lcpbench.list_problems()) <= names
     bb = next(e for e in data if e["name"] == "bb-pgd")
     assert {p["name"] for p in bb["params"]} >= {"variant", "safeguard", "memory"}
     assert all(p["doc"] for p in bb["params"])          # every parameter documented
