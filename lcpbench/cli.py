@@ -1,4 +1,5 @@
-"""The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``, ``simulate``.
+"""The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``, ``simulate``,
+``generate``, ``check``.
 
 Every subcommand returns an exit code; a usage error (unknown solver or
 problem, mistyped parameter, missing file, bad value) is printed as one line on
@@ -15,6 +16,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from . import __version__
+from .check import add_check_parser
+from .generate import add_generate_parser
 from .registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
 from .run_command import add_report_parser, add_run_parser
 from .store import StoreLocked
@@ -99,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     _extend_run_parser(sub)
     add_report_parser(sub)
     _add_simulate_parser(sub)
+    add_generate_parser(sub)
+    add_check_parser(sub)
     return parser
 
 

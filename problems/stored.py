@@ -56,7 +56,7 @@ from lcpbench.operator import dense_uncounted
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "shipped_sets", "parse_instances", "FORMAT", "VERSION",
-           "COST_CONVENTION", "DATA_DIR"]
+           "COST_CONVENTION", "DATA_DIR", "ShippedSetParams", "register_shipped_sets"]
 
 #: Value of the root attribute ``format``.
 FORMAT = "lcpbench.set"
@@ -659,3 +659,51 @@ def stored(p: StoredParams) -> list[LCP]:
     ids = instance_ids(path)
     chosen = [ids[i] for i in parse_instances(p.instances, len(ids))]
     return read_set(path, chosen)
+
+
+# ----------------------------------------------------------------------------- shipped sets
+# Every problems/data/*.h5 is a problem family ``set-<stem>`` wherever this plugin loads
+# (CLI, library, dask workers), not only where the CLI imported it.
+
+
+@dataclass(frozen=True)
+class ShippedSetParams:
+    """Parameters of a shipped stored set.
+
+    Parameters
+    ----------
+    instances : str
+        Positions to read, e.g. ``"0-9"`` or ``"0,3,5-7"`` (inclusive; default all).
+    """
+
+    instances: str = ""
+
+
+def _problem_name(stem: str) -> str:
+    return "set-" + re.sub(r"[^a-z0-9]+", "-", stem.lower()).strip("-")
+
+
+def register_shipped_sets() -> list[str]:
+    """Register problem ``set-<stem>`` for every shipped set; returns the names.
+
+    Each reads its file with the ``stored`` plugin (verified on reading). Names
+    already registered by the same function are left as they are.
+    """
+    names = []
+    for stem, path in shipped_sets().items():
+        pname = _problem_name(stem)
+
+        def load(p: ShippedSetParams, _path: Path = path):
+            return stored(StoredParams(path=str(_path), instances=p.instances))
+
+        load.__doc__ = f"Shipped stored set {stem} ({path.name}), verified on reading."
+        load.__qualname__ = f"shipped_set_{pname}"
+        try:
+            register_problem(pname, ShippedSetParams)(load)
+        except ValueError:
+            continue                     # a plugin of that name exists: keep it
+        names.append(pname)
+    return names
+
+
+register_shipped_sets()

@@ -1,0 +1,366 @@
+"""``lcpbench check``: regression checks of the MVP-only solvers on the shipped sets.
+
+Every MVP-only solver (not the reference QP solvers, not those that need the
+dense matrix) runs with its default parameters on every instance of every
+shipped set (``problems/data/*.h5``, or the sets named with ``--set``). A
+multi-fidelity solver runs once per low fidelity of the set (``bi-pqn:low=p4``)
+when the set has several, with its plain defaults when it has one, and not at
+all on a set without low fidelities. A (set, solver) pair *regresses* when
+
+* a verified residual ``||min(x, Ax+b)||`` exceeds the paper stop rule's bound at
+  ``--tol`` (the run is not solved);
+* the verified ``w = A x + b`` differs from the stored reference ``w`` by more
+  than ``W_RTOL`` relative, ``||w - w_ref|| / max(||w_ref||, ||b||)``;
+* the median E-MVP count over the set exceeds the stored baseline by more than
+  ``EMVP_SLACK`` (10 %).
+
+E-MVPs on stored sets use the cost ratios stored with the set, so they are the
+same on every machine and a baseline means what it meant when it was written.
+
+Baselines live in a versioned JSON file (default ``problems/data/baselines.json``)::
+
+    {"format": "lcpbench.baselines", "version": 1, "lcpbench_version": "0.1.0",
+     "updated": "2024-...", "tol": 1e-08,
+     "sets": {"<set>": {"<solver spec>": <median E-MVPs>, ...}, ...}}
+
+``lcpbench check --update-baseline`` rewrites the entries of the sets it ran
+(others are kept). A pair without a baseline entry is reported as ``new``, not
+as a failure.
+
+Importing this module also registers one problem family per shipped set,
+``set-<stem>`` (e.g. ``--problem set-lattice-rpy-m3:instances=0-4``), so the
+shipped sets appear in ``lcpbench list problems``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from . import __version__
+from .context import Budget
+from .operator import apply_uncounted
+from .registry import solvers
+
+__all__ = ["check", "CheckRow", "default_specs", "load_baselines", "write_baselines",
+           "resolve_sets", "format_table", "add_check_parser",
+           "cmd_check", "DEFAULT_BASELINE", "W_RTOL", "EMVP_SLACK", "BASELINE_FORMAT"]
+
+#: Relative tolerance on ``w`` against the stored reference.
+W_RTOL = 1e-6
+#: Allowed relative increase of the median E-MVPs over the baseline.
+EMVP_SLACK = 0.10
+#: Value of the baseline file's ``format`` key.
+BASELINE_FORMAT = "lcpbench.baselines"
+_BASELINE_VERSION = 1
+
+
+def _data_dir() -> Path:
+    from lcpbench.problems.stored import DATA_DIR
+
+    return DATA_DIR
+
+
+#: Default baseline file (next to the shipped sets).
+DEFAULT_BASELINE = _data_dir() / "baselines.json"
+
+
+# ----------------------------------------------------------------------------- baselines
+
+
+def load_baselines(path: Union[str, Path]) -> dict:
+    """The baseline file as a dict (an empty one when the file does not exist).
+
+    Raises
+    ------
+    ValueError
+        The file is not valid JSON or not an lcpbench baseline file.
+    """
+    path = Path(path)
+    if not path.exists():
+        return {"format": BASELINE_FORMAT, "version": _BASELINE_VERSION, "sets": {}}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read the baseline file ({exc}); fix it or rewrite it "
+                         "with lcpbench check --update-baseline") from None
+    if not isinstance(data, dict) or data.get("format") != BASELINE_FORMAT:
+        raise ValueError(f"{path}: not an lcpbench baseline file (format "
+                         f"{data.get('format') if isinstance(data, dict) else None!r}, expected "
+                         f"{BASELINE_FORMAT!r}); rewrite it with lcpbench check --update-baseline")
+    if int(data.get("version", 0)) > _BASELINE_VERSION:
+        raise ValueError(f"{path}: baseline version {data.get('version')} is newer than this "
+                         f"lcpbench reads ({_BASELINE_VERSION}); upgrade lcpbench")
+    if not isinstance(data.get("sets", {}), dict):
+        raise ValueError(f"{path}: 'sets' must map set -> solver -> median E-MVPs")
+    data.setdefault("sets", {})
+    return data
+
+
+def write_baselines(path: Union[str, Path], data: dict) -> None:
+    """Write the baseline file (sorted keys, one entry per line), atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    tmp.replace(path)
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclasses.dataclass
+class CheckRow:
+    """The outcome of one solver on one set.
+
+    Attributes
+    ----------
+    set, solver : str
+    runs, solved : int
+        Instances run, and those whose verified residual met the bound.
+    median_emvps : float
+    baseline : float or None
+        Stored median E-MVPs (None: no entry).
+    max_w_err : float
+        Largest ``||w - w_ref|| / max(||w_ref||, ||b||)`` over instances with a reference.
+    problems : list of str
+        What regressed (empty: none).
+    """
+
+    set: str
+    solver: str
+    runs: int
+    solved: int
+    median_emvps: float
+    baseline: Optional[float]
+    max_w_err: float
+    problems: list = dataclasses.field(default_factory=list)
+
+    @property
+    def regressed(self) -> bool:
+        return bool(self.problems)
+
+    @property
+    def verdict(self) -> str:
+        if self.problems:
+            return "REGRESSED: " + "; ".join(self.problems)
+        return "new" if self.baseline is None else "ok"
+
+
+def resolve_sets(names: Optional[Sequence[str]] = None) -> dict[str, Path]:
+    """``{set name: path}`` of the shipped sets, or of the given names or ``.h5`` paths.
+
+    Raises
+    ------
+    ValueError
+        A name that is neither a shipped set nor an existing file.
+    """
+    from lcpbench.problems.stored import shipped_sets
+
+    shipped = shipped_sets()
+    if not names:
+        return dict(shipped)
+    out = {}
+    for n in names:
+        p = Path(n)
+        if n in shipped:
+            out[n] = shipped[n]
+        elif p.suffix == ".h5" and p.exists():
+            out[p.stem] = p
+        else:
+            raise ValueError(f"--set {n!r}: no shipped set of that name and no such .h5 file "
+                             f"(shipped: {', '.join(shipped) or 'none'})")
+    return out
+
+
+def default_specs(low_names: Sequence[str]) -> list[str]:
+    """Every MVP-only, non-reference solver with its defaults, for a set with ``low_names``."""
+    specs = []
+    for name, info in solvers().items():
+        if name.startswith("test-") or info.reference or not info.mvp_only:
+            continue
+        if info.multifidelity:
+            if not low_names:
+                continue
+            if name == "bi-pqn" and len(low_names) > 1:
+                specs.extend(f"{name}:low={k}" for k in low_names)
+                continue
+        specs.append(name)
+    return specs
+
+
+def _w_err(lcp, x: np.ndarray) -> float:
+    ref = lcp.reference
+    if ref is None or ref.get("w") is None or not np.all(np.isfinite(x)):
+        return float("nan") if ref is None else float("inf")
+    w = apply_uncounted(lcp.A, x) + lcp.b
+    w_ref = np.asarray(ref["w"], dtype=np.float64)
+    scale = max(float(np.linalg.norm(w_ref)), float(np.linalg.norm(lcp.b)),
+                np.finfo(float).tiny)
+    return float(np.linalg.norm(w - w_ref) / scale)
+
+
+def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
+          baseline: Union[str, Path, None] = None, update_baseline: bool = False,
+          solver_specs: Optional[Sequence[str]] = None, max_emvps: float = 5000.0,
+          progress: bool = False) -> list[CheckRow]:
+    """Run the regression checks; see the module docs.
+
+    Parameters
+    ----------
+    sets : list of str, optional
+        Shipped set names or ``.h5`` paths (default: every shipped set).
+    tol : float
+        Paper stop-rule tolerance of every run and of the verified-residual check.
+    baseline : str or Path, optional
+        Baseline file (default :data:`DEFAULT_BASELINE`).
+    update_baseline : bool
+        Rewrite the baselines of the checked sets with this run's medians.
+    solver_specs : list of str, optional
+        Solvers to run instead of :func:`default_specs`.
+    max_emvps : float
+        E-MVP budget of each run.
+    progress : bool
+        tqdm progress bar on stderr.
+
+    Returns
+    -------
+    list of CheckRow
+        One per (set, solver); ``row.regressed`` says whether it failed.
+
+    Raises
+    ------
+    ValueError
+        Unknown set, bad baseline file, bad solver spec.
+    lcpbench.problems.stored.StoredSetError
+        A set is truncated or corrupted.
+    """
+    from tqdm.auto import tqdm
+
+    from lcpbench.problems.stored import read_set
+
+    from .api import run_solver
+
+    path = Path(baseline) if baseline else DEFAULT_BASELINE
+    data = load_baselines(path)
+    chosen = resolve_sets(sets)
+    loaded = {name: read_set(p) for name, p in chosen.items()}
+    plans = []
+    for name, lcps in loaded.items():
+        lows = sorted({k for lcp in lcps for k in lcp.low})
+        for spec in (list(solver_specs) if solver_specs else default_specs(lows)):
+            plans.append((name, spec))
+    rows: list[CheckRow] = []
+    total = sum(len(loaded[name]) for name, _ in plans)
+    bar = tqdm(total=total, desc="lcpbench check", unit="run", disable=not progress,
+               file=sys.stderr)
+    try:
+        for name, spec in plans:
+            emvps, solved, errs, notes = [], 0, [], []
+            for lcp in loaded[name]:
+                res = run_solver(lcp, spec, stop="paper", tol=tol,
+                                 budget=Budget(max_emvps=max_emvps))
+                solved += int(res.solved)
+                emvps.append(float(res.emvps))
+                errs.append(_w_err(lcp, res.x))
+                bar.update(1)
+            runs = len(loaded[name])
+            med = float(np.median(emvps)) if emvps else 0.0
+            base = data["sets"].get(name, {}).get(spec)
+            finite = [e for e in errs if not np.isnan(e)]
+            max_err = max(finite) if finite else float("nan")
+            if solved < runs:
+                notes.append(f"{runs - solved} of {runs} verified residual(s) above the "
+                             f"tolerance {tol:g}")
+            if finite and max_err > W_RTOL:
+                notes.append(f"w differs from the reference by {max_err:.2g} relative "
+                             f"(> {W_RTOL:g})")
+            if base is not None and not update_baseline and med > (1 + EMVP_SLACK) * base:
+                notes.append(f"median E-MVPs {med:.4g} > baseline {base:.4g} + "
+                             f"{EMVP_SLACK:.0%}")
+            rows.append(CheckRow(name, spec, runs, solved, med,
+                                 None if base is None else float(base), max_err, notes))
+    finally:
+        bar.close()
+    if update_baseline:
+        for r in rows:
+            data["sets"].setdefault(r.set, {})[r.solver] = round(r.median_emvps, 6)
+        data.update({"format": BASELINE_FORMAT, "version": _BASELINE_VERSION,
+                     "lcpbench_version": __version__, "tol": float(tol),
+                     "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+        write_baselines(path, data)
+    return rows
+
+
+def format_table(rows: Sequence[CheckRow]) -> str:
+    """The check table: set, solver, solved/runs, median E-MVPs, baseline, verdict."""
+    from tabulate import tabulate
+
+    body = [[r.set, r.solver, f"{r.solved}/{r.runs}", f"{r.median_emvps:.4g}",
+             "-" if r.baseline is None else f"{r.baseline:.4g}",
+             "-" if np.isnan(r.max_w_err) else f"{r.max_w_err:.1e}", r.verdict] for r in rows]
+    return tabulate(body, headers=["set", "solver", "solved/runs", "median E-MVPs",
+                                   "baseline", "max w err", "verdict"])
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def add_check_parser(sub) -> None:
+    """Add ``lcpbench check`` to the subcommands ``sub``."""
+    p = sub.add_parser(
+        "check", help="regression checks of the MVP-only solvers on the shipped sets",
+        description="Run every MVP-only solver with its defaults on every shipped set; exit 1 "
+                    "with a table of what regressed when a verified residual exceeds --tol, "
+                    f"w differs from the stored reference by more than {W_RTOL:g} relative, "
+                    f"or a median E-MVP count exceeds its baseline by more than "
+                    f"{EMVP_SLACK:.0%}.")
+    p.add_argument("--set", action="append", default=None, metavar="NAME",
+                   help="shipped set name or .h5 path, repeatable (default: every shipped set)")
+    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
+                   help="solver spec, repeatable (default: every MVP-only solver)")
+    p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
+    p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per run")
+    p.add_argument("--baseline", default=None, metavar="FILE",
+                   help="baseline file (default problems/data/baselines.json)")
+    p.add_argument("--update-baseline", action="store_true",
+                   help="rewrite the baselines of the checked sets with this run's medians")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_check)
+
+
+def cmd_check(args) -> int:
+    """``lcpbench check``: exit 0 (no regression), 1 (regression) or 2 (usage/file error)."""
+    from lcpbench.problems.stored import StoredSetError
+
+    try:
+        rows = check(args.set, tol=args.tol, baseline=args.baseline,
+                     update_baseline=args.update_baseline, solver_specs=args.solver,
+                     max_emvps=args.max_emvps, progress=not args.quiet)
+    except StoredSetError as exc:
+        print(f"lcpbench check: error: {exc}", file=sys.stderr)
+        return 2
+    if not rows:
+        print("lcpbench check: no shipped set to check (problems/data/*.h5); generate one with "
+              "lcpbench generate or pass --set FILE.h5")
+        return 0
+    print(format_table(rows))
+    bad = [r for r in rows if r.regressed]
+    new = [r for r in rows if r.baseline is None and not r.regressed]
+    base = args.baseline or DEFAULT_BASELINE
+    if args.update_baseline:
+        print(f"\nbaselines of {len({r.set for r in rows})} set(s) written to {base}")
+    elif new:
+        print(f"\n{len(new)} solver/set pair(s) have no baseline; record them with "
+              "lcpbench check --update-baseline")
+    if bad:
+        print(f"\n{len(bad)} of {len(rows)} solver/set pair(s) regressed", file=sys.stderr)
+        return 1
+    return 0
+

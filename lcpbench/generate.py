@@ -1,0 +1,493 @@
+"""``lcpbench generate``: a dense stored set from a live suspension scene.
+
+The scene (e.g. ``lattice:m=3,model=rpy``) is simulated with one solver, one
+LCP per forward Euler step, exactly as ``lcpbench simulate`` does. For every
+chosen step the instance is written to an HDF5 set (layout of
+:mod:`lcpbench.problems.stored`):
+
+* ``A``: the high-fidelity ``D' M D`` formed densely by ``n`` uncounted MVPs
+  and symmetrised, ``(A + A') / 2`` (the boundary-integral mobility is only
+  symmetric to about 1e-3; the measured asymmetry ``max|A - A'| / max|A|`` is
+  kept as instance attr ``asymmetry``);
+* ``b`` and the warm start ``x0`` the online solver got (previous step's
+  forces carried by pair identity), when there is one;
+* ``low/<name>/A`` for every requested fidelity, formed and symmetrised the
+  same way, with ``cost_ratio = t_low / t_high`` (seconds per MVP measured on
+  this instance with :func:`~lcpbench.problems.suspension.contacts.measure_cost`)
+  and the fidelity knobs (``model``, ``p``, ``eps_gmres``, ``t_mvp``);
+* ``reference``: the consensus of the QP solvers (:func:`lcpbench.reference`)
+  on the dense ``A``, with its ``accepted`` flag;
+* provenance: root attrs ``generator`` (the command line), ``name``,
+  ``scene``, ``scene_params``, ``solver``, ``steps``, ``lows``, ``versions``;
+  instance attrs ``step``, ``M``, ``n``, ``t_mvp_high``, ``scene``.
+
+Step numbers are the scene's 0-based step indices. Steps before the first
+chosen one (and between chosen ones) are simulated but not stored. The scene is
+deterministic, so a run into an existing file re-simulates and skips the
+instances the file already holds (after verifying them): an interrupted run
+resumes, and a longer ``--steps`` range appends. The simulation never depends
+on what is stored: it always solves the matrix-free LCP, so a resumed file
+holds the same instances as one written in a single run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import platform
+import re
+import shlex
+import sys
+from pathlib import Path
+from typing import Iterable, Optional, Sequence, Union
+
+import numpy as np
+
+from . import __version__
+from .context import Budget
+from .lcp import LCP
+from .operator import Operator, dense_uncounted
+
+__all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
+           "add_generate_parser", "cmd_generate", "GenerateSummary"]
+
+_P_LIST = re.compile(r"^p\s*=\s*(.+)$")
+
+
+# ----------------------------------------------------------------------------- parsing
+
+
+def parse_steps(spec: Union[str, int, Iterable[int]]) -> list[int]:
+    """Step indices from ``"31-50"``, ``"0,3,5-7"``, ``"7"`` or an iterable of ints.
+
+    Ranges are inclusive; the result is sorted and without repeats.
+
+    Raises
+    ------
+    ValueError
+        Malformed text, a reversed range or a negative step.
+    """
+    if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
+        items = [int(spec)]
+    elif isinstance(spec, str):
+        items = []
+        if not spec.strip():
+            raise ValueError("--steps is empty; give step indices like 31-50 or 0,3,5-7")
+        for part in spec.split(","):
+            part = part.strip()
+            m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
+            if not m:
+                raise ValueError(f"--steps: cannot parse {part!r}; use 0-based step indices "
+                                 "and inclusive ranges like 31-50 or 0,3,5-7")
+            lo = int(m.group(1))
+            hi = int(m.group(2)) if m.group(2) else lo
+            if hi < lo:
+                raise ValueError(f"--steps: range {part!r} is reversed; write {hi}-{lo}")
+            items.extend(range(lo, hi + 1))
+    else:
+        items = [int(s) for s in spec]
+    if any(s < 0 for s in items):
+        raise ValueError(f"--steps: step indices are 0-based and non-negative; got {items}")
+    if not items:
+        raise ValueError("--steps selects no step; give step indices like 31-50")
+    return sorted(set(items))
+
+
+def _eps_suffix(eps: float) -> str:
+    e = -math.log10(eps)
+    k = int(round(e))
+    if not (0 < eps < 1) or abs(e - k) > 1e-9:
+        raise ValueError(f"--eps {eps:g}: GMRES tolerances must be powers of ten below 1 "
+                         "(1e-6, 1e-8, ...), so the fidelity can be named p<k>e<j>")
+    return f"e{k}"
+
+
+def parse_lows(lows: Sequence[str], eps: Sequence[float] = ()) -> list[str]:
+    """Fidelity names from ``--low`` and ``--eps`` values.
+
+    Parameters
+    ----------
+    lows : list of str
+        Each item is ``p=3,4`` (boundary integral at orders 3 and 4), a fidelity
+        name (``rpy``, ``self``, ``bim``, ``p4``, ``p4e6``) or a comma-separated
+        list of names.
+    eps : list of float
+        GMRES tolerances; every ``p=`` order is generated at each of them
+        (``p=4`` with ``eps = 1e-6, 1e-8`` gives ``p4e6`` and ``p4e8``). Without
+        ``eps`` the order takes the scene's ``eps_gmres`` (name ``p4``).
+
+    Returns
+    -------
+    list of str
+        Names understood by :func:`~lcpbench.problems.suspension.contacts.parse_fidelity`,
+        in the given order, without repeats.
+    """
+    from lcpbench.problems.suspension.contacts import parse_fidelity
+
+    suffixes = [_eps_suffix(float(e)) for e in eps]
+    out: list[str] = []
+    for item in lows:
+        item = str(item).strip()
+        m = _P_LIST.match(item)
+        if m:
+            orders = [t.strip() for t in m.group(1).split(",") if t.strip()]
+            bad = [t for t in orders if not t.isdigit() or int(t) < 1]
+            if bad or not orders:
+                raise ValueError(f"--low {item!r}: orders must be positive integers, e.g. "
+                                 "--low p=3,4")
+            names = [f"p{int(t)}{s}" for t in orders for s in (suffixes or [""])]
+        else:
+            names = [t.strip() for t in item.split(",") if t.strip()]
+            if not names:
+                raise ValueError("--low is empty; use e.g. --low p=3,4 or --low rpy")
+        for name in names:
+            parse_fidelity(name, 8, 1e-8)          # validates the name
+            if name not in out:
+                out.append(name)
+    return out
+
+
+def instance_id(step: int) -> str:
+    """The instance id of a step: ``step00031``."""
+    return f"step{int(step):05d}"
+
+
+def default_cache_dir() -> Path:
+    """Folder for generated sets: ``$LCPBENCH_CACHE/sets`` or ``~/.cache/lcpbench/sets``."""
+    import os
+
+    root = os.environ.get("LCPBENCH_CACHE")
+    return (Path(root) if root else Path.home() / ".cache" / "lcpbench") / "sets"
+
+
+# ----------------------------------------------------------------------------- generation
+
+
+@dataclasses.dataclass
+class GenerateSummary:
+    """What :func:`generate` did.
+
+    Attributes
+    ----------
+    path : Path
+        The set file.
+    written, kept : list of str
+        Instance ids written by this run, and those already in the file.
+    simulated : int
+        Time steps simulated.
+    references_rejected : list of str
+        Written instances whose QP reference was not accepted (backends disagreed).
+    seconds : float
+        Wall time.
+    """
+
+    path: Path
+    written: list
+    kept: list
+    simulated: int
+    references_rejected: list
+    seconds: float
+
+
+def _versions() -> dict:
+    import h5py
+    import scipy
+
+    return {"lcpbench": __version__, "python": platform.python_version(),
+            "numpy": np.__version__, "scipy": scipy.__version__, "h5py": h5py.__version__}
+
+
+def _dense_sym(op: Operator) -> tuple[np.ndarray, float]:
+    """The operator as a symmetrised dense matrix and its relative asymmetry."""
+    A = np.asarray(dense_uncounted(op), dtype=np.float64)
+    scale = float(np.max(np.abs(A))) if A.size else 0.0
+    asym = float(np.max(np.abs(A - A.T)) / scale) if scale > 0 else 0.0
+    return 0.5 * (A + A.T), asym
+
+
+def _cost(op: Operator) -> float:
+    from lcpbench.problems.suspension.contacts import measure_cost
+
+    return float(op.cost) if op.cost else float(measure_cost(op))
+
+
+def _check_resume(f, path: Path, config: dict) -> None:
+    """Refuse to append to a file generated with another scene, solver or fidelities."""
+    for key in ("scene_params", "solver", "lows"):
+        if key not in f.attrs:
+            continue
+        old = f.attrs[key]
+        old = old.decode() if isinstance(old, bytes) else str(old)
+        if old != config[key]:
+            raise ValueError(f"{path} was generated with {key} = {old}, this run has "
+                             f"{config[key]}; resume with the same --scene, --solver, --low and "
+                             "--eps, or write to another --out")
+
+
+def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, Path], *,
+             solver: str = "mono-pqn", lows: Sequence[str] = (), name: Optional[str] = None,
+             title: Optional[str] = None, description: Optional[str] = None,
+             tol: float = 1e-8, stop: str = "paper", max_emvps: float = 5000.0,
+             progress: bool = True, argv: Optional[Sequence[str]] = None,
+             compression: Optional[str] = None) -> GenerateSummary:
+    """Simulate ``scene_spec`` and store the dense LCPs of the chosen ``steps``.
+
+    Parameters
+    ----------
+    scene_spec : str
+        Scene, e.g. ``lattice:m=3,model=rpy`` or ``lattice:m=3,model=bim,p=6``.
+        Do not put ``low=`` in it; pass the fidelities as ``lows``.
+    steps : str or iterable of int
+        0-based steps to store (``"31-50"``); earlier steps are only simulated.
+    out : str or Path
+        The ``.h5`` file; created, or resumed when it exists.
+    solver : str
+        Solver that advances the simulation (``mono-pqn``; a multi-fidelity
+        solver gets the ``lows`` at every step).
+    lows : list of str
+        Low fidelities to store (``p3e6``, ``rpy``, ``self``; see :func:`parse_lows`).
+    name, title, description : str, optional
+        Set name (default: the file stem) and the set's root attrs.
+    tol, stop, max_emvps
+        Stop rule and E-MVP budget of each simulation solve.
+    progress : bool
+        tqdm progress bar on stderr.
+    argv : list of str, optional
+        The command line stored as ``generator``.
+    compression : str, optional
+        h5py compression of the matrices (e.g. ``gzip``).
+
+    Returns
+    -------
+    GenerateSummary
+
+    Raises
+    ------
+    KeyError, TypeError, ValueError
+        Bad scene, solver, step or fidelity; a file generated with other settings.
+    lcpbench.problems.stored.StoredSetError
+        The existing file is truncated or corrupted (names instance and dataset).
+    """
+    import time
+
+    from tqdm.auto import tqdm
+
+    from lcpbench.problems.stored import SetWriter, instance_ids, read_instance
+    from lcpbench.problems.suspension.scene import make_scene
+
+    from .api import run_solver
+    from .reference import reference as consensus
+    from .registry import get_solver, make_params, parse_spec
+
+    t_start = time.perf_counter()
+    wanted = parse_steps(steps)
+    lows = list(dict.fromkeys(str(x) for x in lows))
+    scene = make_scene(scene_spec)
+    base = scene.params
+    if base.low:
+        raise ValueError(f"scene {scene_spec!r} sets low={list(base.low)}; pass the "
+                         "fidelities with --low instead (they are stored per instance)")
+    sname, sraw = parse_spec(solver)
+    sinfo = get_solver(sname)
+    make_params(sname, sinfo.params, sraw)
+    if sinfo.multifidelity and not lows:
+        raise ValueError(f"solver {solver!r} needs low-fidelity operators; add --low (e.g. "
+                         "--low rpy) or simulate with mono-pqn")
+    with_lows = dataclasses.replace(base, low=tuple(lows))    # validates the names
+    sim_params = with_lows if sinfo.multifidelity else base
+    out = Path(out)
+    name = name or out.stem
+    params_json = json.dumps(dataclasses.asdict(base), sort_keys=True, default=str)
+    config = {"scene_params": params_json, "solver": solver, "lows": json.dumps(lows)}
+    generator = shlex.join(argv) if argv else (
+        f"lcpbench generate --scene {shlex.quote(scene_spec)} --solver {shlex.quote(solver)} "
+        f"--steps {_steps_text(wanted)} " + "".join(f"--low {x} " for x in lows)
+        + f"--name {shlex.quote(name)} --out {shlex.quote(str(out))}")
+    title = title or f"{name}: dense LCPs of {scene_spec}, steps {_steps_text(wanted)}"
+    description = description or (
+        f"Scene {scene_spec} ({base.m ** 3} spheres, model {base.model}) simulated with "
+        f"{solver} (stop {stop}, tol {tol:g}); for each stored step the dense high-fidelity "
+        f"A = D'MD (n MVPs, symmetrised), b, the warm start, the low fidelities "
+        f"{', '.join(lows) or 'none'} with cost_ratio = t_low / t_high measured on the "
+        "instance, and the QP consensus reference.")
+    budget = Budget(max_emvps=max_emvps)
+    written, rejected = [], []
+    if out.exists() and out.stat().st_size > 0:   # verify what a resume would keep
+        have = set(instance_ids(out))
+        for s in wanted:
+            if instance_id(s) in have:
+                read_instance(out, instance_id(s))
+    with SetWriter(out, title=title, description=description, generator=generator,
+                   compression=compression) as w:
+        f = w.file
+        _check_resume(f, out, config)
+        kept = [instance_id(s) for s in wanted if w.has(instance_id(s))]
+        if "scene" not in f.attrs:
+            f.attrs.update({"name": name, "scene": scene_spec, "solver": solver,
+                            "versions": json.dumps(_versions(), sort_keys=True),
+                            "stop": stop, "tol": float(tol), **config})
+        f.attrs["steps"] = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
+        todo = [s for s in wanted if instance_id(s) not in kept]
+        last_needed = todo[-1] if todo else -1
+        bar = tqdm(total=last_needed + 1, desc=f"generate {name}", unit="step",
+                   disable=not progress, file=sys.stderr)
+        simulated = 0
+        try:
+            while scene.step_index <= last_needed:
+                k = scene.step_index
+                store = k in todo
+                scene.params = with_lows if store else sim_params
+                problem = scene.build(warm_start=True)
+                lcp = problem.lcp
+                if store:
+                    _write_step(w, scene, problem, k, scene_spec, lows, consensus, written,
+                                rejected)
+                res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget)
+                scene.advance(problem, res.x)
+                simulated += 1
+                bar.set_postfix(step=k, n=lcp.n, stored=len(written) + len(kept))
+                bar.update(1)
+        finally:
+            bar.close()
+            scene.params = base
+    return GenerateSummary(path=out, written=written, kept=kept, simulated=simulated,
+                           references_rejected=rejected,
+                           seconds=time.perf_counter() - t_start)
+
+
+def _stored_steps(ids: Iterable[str]) -> set:
+    out = set()
+    for iid in ids:
+        m = re.fullmatch(r"step(\d+)", iid)
+        if m:
+            out.add(int(m.group(1)))
+    return out
+
+
+def _steps_text(steps: Sequence[int]) -> str:
+    """``[0, 1, 2, 5]`` -> ``"0-2,5"``."""
+    parts, run = [], []
+    for s in sorted(steps):
+        if run and s == run[-1] + 1:
+            run.append(s)
+            continue
+        if run:
+            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [s]
+    if run:
+        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ",".join(parts)
+
+
+def _write_step(w, scene, problem, k: int, scene_spec: str, lows: Sequence[str], consensus,
+                written: list, rejected: list) -> None:
+    """Form and write the dense instance of step ``k``."""
+    from lcpbench.problems.suspension.contacts import parse_fidelity
+
+    lcp = problem.lcp
+    n = lcp.n
+    P = scene.params
+    A, asym = _dense_sym(lcp.A)
+    t_high = _cost(lcp.A) if n else 0.0
+    low = {}
+    for key in lows:
+        op = lcp.low[key]
+        A_low, asym_low = _dense_sym(op)
+        t_low = _cost(op) if n else 0.0
+        knobs = parse_fidelity(key, P.p, P.eps_gmres)
+        ratio = t_low / t_high if t_high > 0 else 1.0
+        low[key] = (A_low, ratio, {**knobs, "t_mvp": t_low, "asymmetry": asym_low})
+    ref = consensus(LCP(A, lcp.b, psd_check=False))
+    attrs = {"step": int(k), "M": int(scene.M), "t_mvp_high": float(t_high),
+             "scene": scene_spec, "model": P.model, "p": int(P.p),
+             "eps_gmres": float(P.eps_gmres), "dt": float(P.dt), "delta": float(P.delta),
+             "seed": int(P.seed), "asymmetry": asym, "family": "lattice"}
+    if lcp.meta.get("min_gap") is not None:
+        attrs["min_gap"] = float(lcp.meta["min_gap"])
+    x0 = lcp.x0 if lcp.x0 is not None and np.any(lcp.x0) else None
+    iid = instance_id(k)
+    w.write_instance(iid, A, lcp.b, low=low, x0=x0, reference=ref, attrs=attrs)
+    written.append(iid)
+    if not ref.accepted:
+        rejected.append(iid)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def add_generate_parser(sub) -> None:
+    """Add ``lcpbench generate`` to the subcommands ``sub``."""
+    p = sub.add_parser(
+        "generate", help="write a dense stored set from a live scene",
+        description="Simulate a scene with one solver and write, for each chosen step, the "
+                    "dense high-fidelity A (n MVPs), b, the dense low-fidelity matrices with "
+                    "their measured cost ratios, the QP consensus reference and provenance to "
+                    "an HDF5 set. Re-running into the same file resumes: instances already "
+                    "in it are verified and kept.")
+    p.add_argument("--scene", default="lattice:m=3,model=rpy", metavar="NAME[:k=v,...]",
+                   help="scene spec (default lattice:m=3,model=rpy)")
+    p.add_argument("--solver", default="mono-pqn", metavar="NAME[:k=v,...]",
+                   help="solver that advances the simulation (default mono-pqn)")
+    p.add_argument("--steps", required=True, metavar="RANGE",
+                   help="0-based steps to store, e.g. 31-50 or 0,3,5-7 (earlier steps are "
+                        "simulated, not stored)")
+    p.add_argument("--low", action="append", default=[], metavar="FIDELITY",
+                   help="low fidelity to store, repeatable: p=3,4 (orders, at each --eps), "
+                        "rpy, self, p4e6")
+    p.add_argument("--eps", default="", metavar="E1,E2",
+                   help="GMRES tolerances of the p= fidelities, e.g. 1e-6,1e-8 (names p4e6, "
+                        "p4e8; default the scene's eps_gmres, names p4)")
+    p.add_argument("--out", default=None, metavar="FILE.h5",
+                   help="the set file (default <cache>/sets/NAME.h5, cache $LCPBENCH_CACHE "
+                        "or ~/.cache/lcpbench)")
+    p.add_argument("--name", default=None, help="set name (default: the file stem)")
+    p.add_argument("--title", default=None, help="one-line title (root attr)")
+    p.add_argument("--description", default=None, help="description (root attr)")
+    p.add_argument("--tol", type=float, default=1e-8, help="simulation solves' tolerance")
+    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
+    p.add_argument("--compression", choices=("gzip", "lzf"), default=None,
+                   help="compress the matrices")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_generate)
+
+
+def _parse_eps(text: str) -> list[float]:
+    out = []
+    for t in (s.strip() for s in str(text).split(",")):
+        if not t:
+            continue
+        try:
+            out.append(float(t))
+        except ValueError:
+            raise ValueError(f"--eps: {t!r} is not a number; use e.g. --eps 1e-6,1e-8") \
+                from None
+    return out
+
+
+def cmd_generate(args) -> int:
+    """``lcpbench generate``: exit 0, or 2 with one line for a usage or file error."""
+    from lcpbench.problems.stored import StoredSetError
+
+    try:
+        lows = parse_lows(args.low, _parse_eps(args.eps))
+        if args.out is None and not args.name:
+            raise ValueError("give --out FILE.h5 or --name NAME (written to the cache folder)")
+        out = Path(args.out) if args.out else default_cache_dir() / f"{args.name}.h5"
+        summary = generate(args.scene, args.steps, out, solver=args.solver, lows=lows,
+                           name=args.name, title=args.title, description=args.description,
+                           tol=args.tol, stop=args.stop, max_emvps=args.max_emvps,
+                           progress=not args.quiet,
+                           argv=["lcpbench"] + list(getattr(args, "argv", ["generate"])),
+                           compression=args.compression)
+    except StoredSetError as exc:
+        print(f"lcpbench generate: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{summary.path}: wrote {len(summary.written)} instance(s), kept "
+          f"{len(summary.kept)}, simulated {summary.simulated} step(s) in "
+          f"{summary.seconds:.1f} s")
+    if summary.references_rejected:
+        print(f"note: the QP backends disagreed on {', '.join(summary.references_rejected)} "
+              "(reference stored with accepted = False)")
+    return 0

@@ -1,0 +1,144 @@
+"""``lcpbench generate``: dense stored sets from the live lattice scene (model rpy)."""
+
+import h5py
+import numpy as np
+import pytest
+
+from lcpbench.cli import main
+from lcpbench.generate import generate, instance_id, parse_lows, parse_steps
+from lcpbench.operator import dense_uncounted
+from lcpbench.problems.stored import instance_ids, read_instance, read_set, set_info
+from lcpbench.problems.suspension.scene import make_scene
+
+SCENE = "lattice:m=3,model=rpy"
+STEPS = "20-21"          # the cluster has formed: n ~ 45 contacts, many active
+
+
+def _gen(path, steps=STEPS, lows=("self",)):
+    args = ["generate", "--scene", SCENE, "--steps", steps, "--out", str(path), "--quiet"]
+    for low in lows:
+        args += ["--low", low]
+    return main(args)
+
+
+@pytest.fixture(scope="module")
+def small_set(tmp_path_factory):
+    path = tmp_path_factory.mktemp("gen") / "small.h5"
+    assert _gen(path) == 0
+    return path
+
+
+def test_parse_steps_and_lows():
+    assert parse_steps("31-33,40") == [31, 32, 33, 40]
+    assert parse_steps("5") == [5]
+    with pytest.raises(ValueError, match="reversed"):
+        parse_steps("9-3")
+    with pytest.raises(ValueError, match="cannot parse"):
+        parse_steps("a-b")
+    assert parse_lows(["p=3,4", "rpy"], [1e-6, 1e-8]) == ["p3e6", "p3e8", "p4e6", "p4e8", "rpy"]
+    assert parse_lows(["p=4"]) == ["p4"]
+    assert parse_lows(["self,rpy", "rpy"]) == ["self", "rpy"]
+    with pytest.raises(ValueError, match="powers of ten"):
+        parse_lows(["p=4"], [3e-7])
+    with pytest.raises(ValueError, match="unknown fidelity"):
+        parse_lows(["fast"])
+
+
+def test_layout_provenance_and_costs(small_set):
+    info = set_info(small_set)
+    assert info["ids"] == [instance_id(20), instance_id(21)]
+    for key in ("generator", "created", "lcpbench_version", "title", "description", "scene",
+                "scene_params", "versions", "solver", "name"):
+        assert info[key], key
+    assert "--steps 20-21" in info["generator"] and info["scene"] == SCENE
+    with h5py.File(small_set, "r") as f:
+        g = f["instances"][instance_id(20)]
+        assert {"A", "b", "low", "reference"} <= set(g.keys())
+        assert "sha256:A" in g.attrs and "sha256:low/self/A" in g.attrs
+        assert g.attrs["step"] == 20 and g.attrs["M"] == 27
+        assert g.attrs["t_mvp_high"] > 0
+        la = g["low/self"].attrs
+        assert la["cost_ratio"] > 0 and la["t_mvp"] > 0 and la["model"] == "self"
+        assert np.isclose(la["cost_ratio"], la["t_mvp"] / g.attrs["t_mvp_high"])
+    lcp = read_instance(small_set, instance_id(21))
+    assert lcp.n > 20 and lcp.low["self"].cost > 0
+    assert lcp.reference["accepted"]
+    x, w = lcp.reference["x"], lcp.reference["w"]
+    assert np.count_nonzero(x) > 0                      # contacts are active
+    np.testing.assert_allclose(w, lcp.dense() @ x + lcp.b, atol=1e-9 * np.abs(lcp.b).max())
+
+
+def test_A_is_the_dense_DMD_of_the_simulated_step(small_set):
+    scene = make_scene(SCENE + ",low=[self]")
+    while scene.step_index < 21:
+        scene.step("mono-pqn")
+    problem = scene.build()
+    A = dense_uncounted(problem.lcp.A)
+    A_self = dense_uncounted(problem.lcp.low["self"])
+    stored = read_instance(small_set, instance_id(21))
+    scale = np.abs(A).max()
+    np.testing.assert_allclose(stored.dense(), A, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(stored.low["self"].matmat(np.eye(stored.n)), A_self,
+                               rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(stored.b, problem.lcp.b, rtol=1e-13, atol=0)
+
+
+def test_resume_keeps_instances_and_appends(tmp_path, small_set, capsys):
+    path = tmp_path / "resume.h5"
+    path.write_bytes(small_set.read_bytes())
+    with h5py.File(path, "r") as f:
+        before = f["instances"][instance_id(20)]["A"][()]
+    assert _gen(path, steps="20-23") == 0
+    out = capsys.readouterr().out
+    assert "wrote 2 instance(s), kept 2" in out
+    assert instance_ids(path) == [instance_id(k) for k in (20, 21, 22, 23)]
+    with h5py.File(path, "r") as f:
+        np.testing.assert_array_equal(f["instances"][instance_id(20)]["A"][()], before)
+    # a one-shot run writes the same instances (the simulation is deterministic)
+    fresh = generate(SCENE, "22-23", tmp_path / "fresh.h5", lows=["self"], progress=False)
+    assert fresh.written == [instance_id(22), instance_id(23)] and fresh.simulated == 24
+    a, b = read_set(path, [instance_id(23)])[0], read_set(tmp_path / "fresh.h5")[1]
+    np.testing.assert_array_equal(a.dense(), b.dense())
+    np.testing.assert_array_equal(a.b, b.b)
+    assert len(read_set(path)) == 4
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, small_set, capsys):
+    path = tmp_path / "other.h5"
+    path.write_bytes(small_set.read_bytes())
+    assert _gen(path, lows=("rpy",)) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "lows" in err and "--out" in err
+
+
+def test_corrupted_file_names_instance_and_dataset(tmp_path, small_set, capsys):
+    path = tmp_path / "bad.h5"
+    path.write_bytes(small_set.read_bytes())
+    with h5py.File(path, "a") as f:
+        f["instances"][instance_id(21)]["low/self/A"][0, 0] += 1.0
+    assert _gen(path) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert instance_id(21) in err and "low/self/A" in err and "checksum" in err
+    assert "Traceback" not in err
+
+
+def test_truncated_file_is_a_one_line_error(tmp_path, small_set, capsys):
+    path = tmp_path / "cut.h5"
+    data = small_set.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    assert _gen(path) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cut.h5" in err
+
+
+def test_usage_errors_exit_2(tmp_path, capsys):
+    assert main(["generate", "--scene", SCENE + ",low=[self]", "--steps", "1",
+                 "--out", str(tmp_path / "x.h5"), "--quiet"]) == 2
+    assert "--low" in capsys.readouterr().err
+    assert main(["generate", "--scene", SCENE, "--steps", "3-1",
+                 "--out", str(tmp_path / "x.h5"), "--quiet"]) == 2
+    assert "reversed" in capsys.readouterr().err
+    assert main(["generate", "--scene", SCENE, "--steps", "1", "--solver", "bi-pqn",
+                 "--out", str(tmp_path / "x.h5"), "--quiet"]) == 2
+    assert "needs low-fidelity" in capsys.readouterr().err
