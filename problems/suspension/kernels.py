@@ -1,0 +1,453 @@
+"""Compiled (numba) kernels of the boundary-integral Stokes backend.
+
+Everything here works on a *unit* sphere frame unless stated: a source
+sphere of centre ``c`` and radius ``a`` is mapped to the unit sphere by
+``xi = (x - c) / a``.  The single layer of a traction density is then
+``u(x) = (a / mu) u1(xi)`` while its stress (and traction) is scale and
+viscosity free: ``stress(x) = stress1(xi)``.
+
+Exterior fields are written with decaying solid harmonics
+``I_l^m(x) = (l - m)! P_l^m(cos theta) exp(i m phi) / r^(l+1)`` (Condon-Shortley
+phase), which obey the ladder relations
+
+    d/dz I_l^m = -I_{l+1}^m,  (d/dx + i d/dy) I_l^m = I_{l+1}^{m+1},
+    (d/dx - i d/dy) I_l^m = -I_{l+1}^{m-1},
+
+so gradients and Hessians of every harmonic are again harmonics of degree
+``l + 1`` and ``l + 2``.  With ``phi_nm = r^(-n-1) Y_n^m`` the single layer of a
+vector-spherical-harmonic density on the unit sphere is (Corona & Veerapaneni,
+JCP 2018, rewritten with Lamb's general solution)::
+
+    V_n -> n/((2n+1)(2n+3)) grad phi
+    W_n -> n/(4n+2) grad phi + n (alpha_n r^2 grad phi + beta_n x phi),  pressure n phi
+    X_n -> 1/(2n+1) x cross grad phi
+
+with ``alpha_n = -(n-2)/(2n(2n-1))`` and ``beta_n = (n+1)/(n(2n-1))``.  The
+caller folds these factors into five complex coefficient sets per sphere
+(``D[j, f, n, m]`` for f = Phi, chi, P_alpha, P_beta, P) so that the real
+field is ``Re sum_{n, m >= 0} D[f, n, m] * (...)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["solid_harmonics", "vsh_at", "unit_field", "traction_expansion",
+           "center_readout", "direct_traction"]
+
+_FOUR_PI = 4.0 * np.pi
+
+
+@njit(cache=True, fastmath=False)
+def solid_harmonics(x: float, y: float, z: float, L: int, out: np.ndarray) -> None:
+    """Fill ``out[l, m]`` (0 <= m <= l <= L) with ``I_l^m`` at the point (x, y, z)."""
+    r2 = x * x + y * y + z * z
+    inv_r2 = 1.0 / r2
+    out[0, 0] = 1.0 / np.sqrt(r2)
+    xy = complex(x, y)
+    for m in range(1, L + 1):
+        out[m, m] = -(2 * m - 1) * xy * inv_r2 * out[m - 1, m - 1]
+    for m in range(0, L + 1):
+        if m + 1 <= L:
+            out[m + 1, m] = (2 * m + 1) * z * out[m, m] * inv_r2
+        for l in range(m + 1, L):
+            out[l + 1, m] = ((2 * l + 1) * z * out[l, m]
+                             - (l * l - m * m) * out[l - 1, m]) * inv_r2
+
+
+@njit(cache=True, fastmath=False)
+def _get(I: np.ndarray, l: int, m: int) -> complex:
+    """``I_l^m`` for any integer m, using ``I_l^{-m} = (-1)^m conj(I_l^m)``."""
+    if m >= 0:
+        if m > l:
+            return 0j
+        return I[l, m]
+    mm = -m
+    if mm > l:
+        return 0j
+    v = I[l, mm].conjugate()
+    if mm % 2 == 1:
+        return -v
+    return v
+
+
+@njit(cache=True, fastmath=False)
+def vsh_at(xh: np.ndarray, p: int, knm: np.ndarray, Y: np.ndarray, V: np.ndarray) -> None:
+    """Orthonormal ``Y_n^m`` and ``V_n^m = grad(r^(-n-1) Y_n^m)`` at a unit vector.
+
+    Parameters
+    ----------
+    xh : ndarray, shape (3,)
+        Point on the unit sphere.
+    p : int
+        Maximum degree.
+    knm : ndarray, shape (p+1, p+1)
+        ``K_nm`` such that ``r^(-n-1) Y_n^m = K_nm I_n^m``.
+    Y : complex ndarray, shape (p+1, p+1)
+        Output ``Y_n^m`` (m >= 0).
+    V : complex ndarray, shape (p+1, p+1, 3)
+        Output Cartesian components of ``V_n^m`` on the unit sphere.
+    """
+    I = np.zeros((p + 2, p + 2), dtype=np.complex128)
+    solid_harmonics(xh[0], xh[1], xh[2], p + 1, I)
+    for n in range(p + 1):
+        for m in range(n + 1):
+            k = knm[n, m]
+            Y[n, m] = k * I[n, m]
+            ip = _get(I, n + 1, m + 1)
+            im = _get(I, n + 1, m - 1)
+            V[n, m, 0] = k * 0.5 * (ip - im)
+            V[n, m, 1] = k * (-0.5j) * (ip + im)
+            V[n, m, 2] = -k * I[n + 1, m]
+
+
+@njit(cache=True, fastmath=False)
+def _sym3(h: np.ndarray) -> np.ndarray:
+    """Real symmetric 3x3 matrix from packed (xx, yy, zz, xy, xz, yz) complex sums."""
+    H = np.empty((3, 3))
+    H[0, 0] = h[0].real
+    H[1, 1] = h[1].real
+    H[2, 2] = h[2].real
+    H[0, 1] = h[3].real
+    H[1, 0] = h[3].real
+    H[0, 2] = h[4].real
+    H[2, 0] = h[4].real
+    H[1, 2] = h[5].real
+    H[2, 1] = h[5].real
+    return H
+
+
+@njit(cache=True, fastmath=False)
+def unit_field(xi: np.ndarray, D: np.ndarray, p: int, I: np.ndarray,
+               u: np.ndarray, G: np.ndarray, gP: np.ndarray) -> float:
+    """Velocity, velocity gradient and pressure of a unit-sphere single layer.
+
+    Parameters
+    ----------
+    xi : ndarray, shape (3,)
+        Evaluation point, ``|xi| > 1``.
+    D : complex ndarray, shape (5, p+1, p+1)
+        Folded coefficients (Phi, chi, P_alpha, P_beta, P), already multiplied by
+        ``K_nm``.
+    p : int
+        Degree of the density.
+    I : complex ndarray, shape (>= p+3, >= p+3)
+        Work buffer for the solid harmonics.
+    u, G, gP : ndarray, shapes (3,), (3, 3), (3,)
+        Outputs: velocity (mu = 1), ``G[i, j] = d u_i / d x_j`` and the pressure
+        gradient.
+
+    Returns
+    -------
+    float
+        The pressure (mu = 1).
+    """
+    solid_harmonics(xi[0], xi[1], xi[2], p + 2, I)
+    # accumulators: gradients (3) and Hessians (xx, yy, zz, xy, xz, yz)
+    gF = np.zeros(3, dtype=np.complex128)
+    hF = np.zeros(6, dtype=np.complex128)
+    gC = np.zeros(3, dtype=np.complex128)
+    hC = np.zeros(6, dtype=np.complex128)
+    gA = np.zeros(3, dtype=np.complex128)
+    hA = np.zeros(6, dtype=np.complex128)
+    gB = np.zeros(3, dtype=np.complex128)
+    gPc = np.zeros(3, dtype=np.complex128)
+    vB = 0j
+    vP = 0j
+    for n in range(p + 1):
+        for m in range(n + 1):
+            dF = D[0, n, m]
+            dC = D[1, n, m]
+            dA = D[2, n, m]
+            dB = D[3, n, m]
+            dP = D[4, n, m]
+            ip = _get(I, n + 1, m + 1)
+            im = _get(I, n + 1, m - 1)
+            g0 = 0.5 * (ip - im)
+            g1 = -0.5j * (ip + im)
+            g2 = -I[n + 1, m]
+            a2 = _get(I, n + 2, m + 2)
+            a1 = _get(I, n + 2, m + 1)
+            a0 = I[n + 2, m]
+            b1 = _get(I, n + 2, m - 1)
+            b2 = _get(I, n + 2, m - 2)
+            hxx = 0.25 * (a2 - 2.0 * a0 + b2)
+            hyy = -0.25 * (a2 + 2.0 * a0 + b2)
+            hzz = a0
+            hxy = -0.25j * (a2 - b2)
+            hxz = 0.5 * (b1 - a1)
+            hyz = 0.5j * (a1 + b1)
+            gF[0] += dF * g0
+            gF[1] += dF * g1
+            gF[2] += dF * g2
+            gC[0] += dC * g0
+            gC[1] += dC * g1
+            gC[2] += dC * g2
+            gA[0] += dA * g0
+            gA[1] += dA * g1
+            gA[2] += dA * g2
+            gB[0] += dB * g0
+            gB[1] += dB * g1
+            gB[2] += dB * g2
+            gPc[0] += dP * g0
+            gPc[1] += dP * g1
+            gPc[2] += dP * g2
+            v = I[n, m]
+            vB += dB * v
+            vP += dP * v
+            hF[0] += dF * hxx
+            hF[1] += dF * hyy
+            hF[2] += dF * hzz
+            hF[3] += dF * hxy
+            hF[4] += dF * hxz
+            hF[5] += dF * hyz
+            hC[0] += dC * hxx
+            hC[1] += dC * hyy
+            hC[2] += dC * hzz
+            hC[3] += dC * hxy
+            hC[4] += dC * hxz
+            hC[5] += dC * hyz
+            hA[0] += dA * hxx
+            hA[1] += dA * hyy
+            hA[2] += dA * hzz
+            hA[3] += dA * hxy
+            hA[4] += dA * hxz
+            hA[5] += dA * hyz
+    x0 = xi[0]
+    x1 = xi[1]
+    x2 = xi[2]
+    r2 = x0 * x0 + x1 * x1 + x2 * x2
+    Fg = np.empty(3)
+    Cg = np.empty(3)
+    Ag = np.empty(3)
+    Bg = np.empty(3)
+    for k in range(3):
+        Fg[k] = gF[k].real
+        Cg[k] = gC[k].real
+        Ag[k] = gA[k].real
+        Bg[k] = gB[k].real
+        gP[k] = gPc[k].real
+    HF = _sym3(hF)
+    HC = _sym3(hC)
+    HA = _sym3(hA)
+    Bv = vB.real
+    # u = grad Phi + x cross grad chi + r^2 grad P_alpha + x P_beta
+    u[0] = Fg[0] + (x1 * Cg[2] - x2 * Cg[1]) + r2 * Ag[0] + x0 * Bv
+    u[1] = Fg[1] + (x2 * Cg[0] - x0 * Cg[2]) + r2 * Ag[1] + x1 * Bv
+    u[2] = Fg[2] + (x0 * Cg[1] - x1 * Cg[0]) + r2 * Ag[2] + x2 * Bv
+    xs = (x0, x1, x2)
+    for i in range(3):
+        i1 = (i + 1) % 3
+        i2 = (i + 2) % 3
+        for j in range(3):
+            # d/dx_j of (x cross grad chi)_i = eps_ijl dchi_l + x_i1 H_i2,j - x_i2 H_i1,j
+            cross = xs[i1] * HC[i2, j] - xs[i2] * HC[i1, j]
+            if j == i1:
+                cross += Cg[i2]
+            elif j == i2:
+                cross -= Cg[i1]
+            val = HF[i, j] + cross + 2.0 * xs[j] * Ag[i] + r2 * HA[i, j] + xs[i] * Bg[j]
+            if i == j:
+                val += Bv
+            G[i, j] = val
+    return vP.real
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def traction_expansion(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
+                       nbr_ptr: np.ndarray, nbr_idx: np.ndarray, centers: np.ndarray,
+                       radii: np.ndarray, D: np.ndarray, p: int, out: np.ndarray) -> None:
+    """Add to ``out[t]`` the traction (normal ``tgt_nrm[t]``) at ``tgt_pts[t]`` of the
+    single layers of the spheres ``nbr_idx[nbr_ptr[i]:nbr_ptr[i+1]]``, i = tgt_sphere[t],
+    evaluated with their exact exterior expansions."""
+    T = tgt_pts.shape[0]
+    for t in prange(T):
+        i = tgt_sphere[t]
+        I = np.empty((p + 3, p + 3), dtype=np.complex128)
+        xi = np.empty(3)
+        u = np.empty(3)
+        G = np.empty((3, 3))
+        gP = np.empty(3)
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        n0 = tgt_nrm[t, 0]
+        n1 = tgt_nrm[t, 1]
+        n2 = tgt_nrm[t, 2]
+        for k in range(nbr_ptr[i], nbr_ptr[i + 1]):
+            j = nbr_idx[k]
+            inv_a = 1.0 / radii[j]
+            for c in range(3):
+                xi[c] = (tgt_pts[t, c] - centers[j, c]) * inv_a
+            P = unit_field(xi, D[j], p, I, u, G, gP)
+            s00 = -P + 2.0 * G[0, 0]
+            s11 = -P + 2.0 * G[1, 1]
+            s22 = -P + 2.0 * G[2, 2]
+            s01 = G[0, 1] + G[1, 0]
+            s02 = G[0, 2] + G[2, 0]
+            s12 = G[1, 2] + G[2, 1]
+            f0 += s00 * n0 + s01 * n1 + s02 * n2
+            f1 += s01 * n0 + s11 * n1 + s12 * n2
+            f2 += s02 * n0 + s12 * n1 + s22 * n2
+        out[t, 0] += f0
+        out[t, 1] += f1
+        out[t, 2] += f2
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def center_readout(centers: np.ndarray, radii: np.ndarray, D: np.ndarray, p: int,
+                   mu: float, out: np.ndarray) -> None:
+    """Add to ``out[i]`` the rigid velocity (U, Omega) that the single layers of all
+    other spheres induce on sphere i, read off exactly with Faxen's laws:
+    U = u(c) + a^2/6 lap u(c) (the surface mean) and Omega = curl u(c) / 2
+    (equal to 3/(8 pi a^4) times the integral of (y - c) x u)."""
+    M = centers.shape[0]
+    for i in prange(M):
+        I = np.empty((p + 3, p + 3), dtype=np.complex128)
+        xi = np.empty(3)
+        u = np.empty(3)
+        G = np.empty((3, 3))
+        gP = np.empty(3)
+        acc = np.zeros(6)
+        for j in range(M):
+            if j == i:
+                continue
+            aj = radii[j]
+            for c in range(3):
+                xi[c] = (centers[i, c] - centers[j, c]) / aj
+            unit_field(xi, D[j], p, I, u, G, gP)
+            fac = (radii[i] / aj) ** 2 / 6.0
+            for c in range(3):
+                acc[c] += aj / mu * (u[c] + fac * gP[c])
+            acc[3] += 0.5 / mu * (G[2, 1] - G[1, 2])
+            acc[4] += 0.5 / mu * (G[0, 2] - G[2, 0])
+            acc[5] += 0.5 / mu * (G[1, 0] - G[0, 1])
+        for c in range(6):
+            out[i, c] += acc[c]
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def direct_traction(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
+                    far_ptr: np.ndarray, far_idx: np.ndarray, src_pts: np.ndarray,
+                    src_f: np.ndarray, out: np.ndarray) -> None:
+    """Add to ``out[t]`` the traction of the single layers of the spheres
+    ``far_idx[far_ptr[i]:far_ptr[i+1]]`` by direct smooth quadrature.
+
+    ``src_pts[j, k]`` are the quadrature nodes of sphere j and ``src_f[j, k]`` the
+    density times the quadrature weight (a point force).  The stress of a point
+    force f at distance r = x - y is -(3 / 4 pi) r (r . f) r^T / |r|^5.
+    """
+    T = tgt_pts.shape[0]
+    nsrc = src_pts.shape[1]
+    c0 = -3.0 / _FOUR_PI
+    for t in prange(T):
+        i = tgt_sphere[t]
+        x0 = tgt_pts[t, 0]
+        x1 = tgt_pts[t, 1]
+        x2 = tgt_pts[t, 2]
+        n0 = tgt_nrm[t, 0]
+        n1 = tgt_nrm[t, 1]
+        n2 = tgt_nrm[t, 2]
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for k in range(far_ptr[i], far_ptr[i + 1]):
+            j = far_idx[k]
+            for s in range(nsrc):
+                r0 = x0 - src_pts[j, s, 0]
+                r1 = x1 - src_pts[j, s, 1]
+                r2 = x2 - src_pts[j, s, 2]
+                rr = r0 * r0 + r1 * r1 + r2 * r2
+                inv = 1.0 / np.sqrt(rr)
+                inv5 = inv * inv * inv * inv * inv
+                rf = r0 * src_f[j, s, 0] + r1 * src_f[j, s, 1] + r2 * src_f[j, s, 2]
+                rn = r0 * n0 + r1 * n1 + r2 * n2
+                w = c0 * rf * rn * inv5
+                f0 += w * r0
+                f1 += w * r1
+                f2 += w * r2
+        out[t, 0] += f0
+        out[t, 1] += f1
+        out[t, 2] += f2
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def traction_response(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, center: np.ndarray,
+                      radius: float, p: int, fac: np.ndarray, out: np.ndarray) -> None:
+    """Traction at each target of the single layer of every complex VSH coefficient.
+
+    ``out[t, kind, n, m, :]`` is the complex traction (normal ``tgt_nrm[t]``) at
+    ``tgt_pts[t]`` of the unit-coefficient density ``C[kind, n, m] = 1`` on the
+    sphere (``center``, ``radius``); ``fac`` (5, 3, p+1, p+1) folds C into the
+    harmonics Phi, chi, P_alpha, P_beta and P.  The real traction of a density
+    is ``Re sum C * out``.  Used to build the dense near-field blocks.
+    """
+    T = tgt_pts.shape[0]
+    for t in prange(T):
+        I = np.empty((p + 3, p + 3), dtype=np.complex128)
+        x = np.empty(3)
+        for c in range(3):
+            x[c] = (tgt_pts[t, c] - center[c]) / radius
+        nv = tgt_nrm[t]
+        solid_harmonics(x[0], x[1], x[2], p + 2, I)
+        r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+        xn = x[0] * nv[0] + x[1] * nv[1] + x[2] * nv[2]
+        g = np.empty(3, dtype=np.complex128)
+        H = np.empty((3, 3), dtype=np.complex128)
+        tf = np.empty((5, 3), dtype=np.complex128)
+        Gc = np.empty((3, 3), dtype=np.complex128)
+        for n in range(p + 1):
+            for m in range(n + 1):
+                ip = _get(I, n + 1, m + 1)
+                im = _get(I, n + 1, m - 1)
+                g[0] = 0.5 * (ip - im)
+                g[1] = -0.5j * (ip + im)
+                g[2] = -I[n + 1, m]
+                a2 = _get(I, n + 2, m + 2)
+                a1 = _get(I, n + 2, m + 1)
+                a0 = I[n + 2, m]
+                b1 = _get(I, n + 2, m - 1)
+                b2 = _get(I, n + 2, m - 2)
+                H[0, 0] = 0.25 * (a2 - 2.0 * a0 + b2)
+                H[1, 1] = -0.25 * (a2 + 2.0 * a0 + b2)
+                H[2, 2] = a0
+                H[0, 1] = -0.25j * (a2 - b2)
+                H[1, 0] = H[0, 1]
+                H[0, 2] = 0.5 * (b1 - a1)
+                H[2, 0] = H[0, 2]
+                H[1, 2] = 0.5j * (a1 + b1)
+                H[2, 1] = H[1, 2]
+                v = I[n, m]
+                gn = g[0] * nv[0] + g[1] * nv[1] + g[2] * nv[2]
+                for i in range(3):
+                    Hn_i = H[i, 0] * nv[0] + H[i, 1] * nv[1] + H[i, 2] * nv[2]
+                    xH_i = H[i, 0] * x[0] + H[i, 1] * x[1] + H[i, 2] * x[2]
+                    # Phi: G = H
+                    tf[0, i] = 2.0 * Hn_i
+                    # P_alpha: G_ij = 2 x_j g_i + r^2 H_ij
+                    tf[2, i] = 2.0 * g[i] * xn + 2.0 * x[i] * gn + 2.0 * r2 * Hn_i
+                    # P_beta: G_ij = delta_ij v + x_i g_j
+                    tf[3, i] = 2.0 * v * nv[i] + x[i] * gn + g[i] * xn
+                    # P: pressure v
+                    tf[4, i] = -v * nv[i]
+                # chi: G_ij = eps_ijl g_l + (x cross H_{:, j})_i ; traction (G + G^T) n
+                for i in range(3):
+                    i1 = (i + 1) % 3
+                    i2 = (i + 2) % 3
+                    for j in range(3):
+                        val = x[i1] * H[i2, j] - x[i2] * H[i1, j]
+                        if j == i1:
+                            val += g[i2]
+                        elif j == i2:
+                            val -= g[i1]
+                        Gc[i, j] = val
+                for i in range(3):
+                    tf[1, i] = ((Gc[i, 0] + Gc[0, i]) * nv[0] + (Gc[i, 1] + Gc[1, i]) * nv[1]
+                                + (Gc[i, 2] + Gc[2, i]) * nv[2])
+                for k in range(3):
+                    for i in range(3):
+                        acc = 0j
+                        for f in range(5):
+                            acc += fac[f, k, n, m] * tf[f, i]
+                        out[t, k, n, m, i] = acc

@@ -1,0 +1,237 @@
+"""Tests of the boundary-integral sphere mobility (model="bim")."""
+
+from __future__ import annotations
+
+import importlib.util
+import pathlib
+
+import numpy as np
+import pytest
+
+from problems.suspension.bim import BimConvergenceWarning, BimMobility, bim_mobility
+from problems.suspension.kernels import unit_field
+from problems.suspension.sphere_vsh import (expansion_coefficients, rigid_density,
+                                            s_eigenvalue, self_operators, sphere_grid,
+                                            traction_eigenvalue, vsh_basis)
+
+_SERIES = pathlib.Path(__file__).with_name("stokes_series.py")
+_spec = importlib.util.spec_from_file_location("stokes_series_for_bim", _SERIES)
+series = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(series)
+
+
+def _dense(op) -> np.ndarray:
+    return np.column_stack([op @ e for e in np.eye(op.shape[1])])
+
+
+# ---- step 1: grid, VSH and spectral self operators -------------------------------------
+
+@pytest.mark.parametrize("p", [1, 2, 5, 8])
+def test_grid_quadrature_and_analysis(p):
+    g = sphere_grid(p)
+    assert g.size == 2 * p * (p + 1)
+    assert abs(g.weights.sum() - 4 * np.pi) < 1e-13
+    b = vsh_basis(p)
+    # analysis inverts synthesis on every column that is not the aliased (n=m=p, sine) pair
+    ok = ~((b.degree == p) & (b.order == p) & b.sine)
+    if p == 1:
+        ok[:] = True
+    AB = b.A @ b.B
+    assert np.abs(AB[np.ix_(ok, ok)] - np.eye(ok.sum())).max() < 1e-12
+
+
+@pytest.mark.parametrize("p", [2, 4, 8])
+def test_self_operator_eigenvalues_match_table(p):
+    b = vsh_basis(p)
+    so = self_operators(p)
+    for k in range(b.B.shape[1]):
+        if b.degree[k] == p and b.order[k] == p:
+            continue
+        kind, n, col = "VWX"[b.kind[k]], int(b.degree[k]), b.B[:, k]
+        assert np.abs(so.S @ col - s_eigenvalue(kind, n) * col).max() < 1e-13
+        assert np.abs(so.Kp @ col - traction_eigenvalue(kind, n) * col).max() < 1e-13
+    # spot values of the table
+    assert traction_eigenvalue("V", 1) == pytest.approx(9 / 15)
+    assert s_eigenvalue("W", 1) == pytest.approx(2 / 3)
+    assert s_eigenvalue("X", 1) == pytest.approx(1 / 3)
+
+
+@pytest.mark.parametrize("p", [1, 3, 8])
+def test_rigid_modes_and_constant_density(p):
+    so = self_operators(p)
+    F, T = np.array([1.0, -2.0, 0.5]), np.array([0.3, 1.0, -0.7])
+    rigid = rigid_density(p, F, T).reshape(-1)
+    # rigid densities are the null space of 1/2 + K' and are kept by L = B'C
+    assert np.abs(so.Kp @ rigid).max() < 1e-14
+    assert np.abs(so.L @ rigid - rigid).max() < 1e-14
+    # S of a uniform density F/(4 pi) is the uniform velocity F/(6 pi)
+    u = so.S @ rigid_density(p, F, np.zeros(3)).reshape(-1)
+    assert np.abs(u.reshape(-1, 3) - F / (6 * np.pi)).max() < 1e-14
+    # S of the torque density is the rotation T/(8 pi) x n
+    u = so.S @ rigid_density(p, np.zeros(3), T).reshape(-1)
+    assert np.abs(so.readout @ u - np.r_[0, 0, 0, T / (8 * np.pi)]).max() < 1e-14
+
+
+def test_exterior_expansion_matches_quadrature_and_jump():
+    """The compiled exterior expansion equals a fine direct quadrature off the
+    sphere and tends to the spectral operators on it (S, and -1/2 + K' = table - 1)."""
+    p, rng = 6, np.random.default_rng(3)
+    b, so, g = vsh_basis(p), self_operators(p), sphere_grid(p)
+    sig = b.B @ rng.standard_normal(b.B.shape[1])
+    D = expansion_coefficients(p, sig[None])[0]
+    I = np.empty((p + 3, p + 3), dtype=complex)
+    u, G, gP = np.empty(3), np.empty((3, 3)), np.empty(3)
+    # fine quadrature of the interpolated density (order 30 grid)
+    from problems.suspension.sphere_vsh import _sample_basis
+    Bq, _ = _sample_basis(p, 30)
+    gq = sphere_grid(30)
+    f = gq.weights[:, None] * (Bq @ (b.A @ sig)).reshape(-1, 3)
+    for x in (np.array([1.6, 0.3, -0.8]), np.array([3.0, 1.0, 2.0])):
+        P = unit_field(x, D, p, I, u, G, gP)
+        r = x[None, :] - gq.nodes
+        d = np.linalg.norm(r, axis=1)
+        rf = np.sum(r * f, axis=1)
+        ud = (f / d[:, None] + (rf / d ** 3)[:, None] * r).sum(0) / (8 * np.pi)
+        sd = -3 / (4 * np.pi) * np.einsum("k,ki,kj->ij", rf / d ** 5, r, r)
+        assert np.abs(u - ud).max() < 1e-12 * np.abs(ud).max()
+        assert np.abs(-P * np.eye(3) + G + G.T - sd).max() < 1e-12 * np.abs(sd).max()
+    vel, trac = [], []
+    for k in range(g.size):
+        P = unit_field(g.nodes[k] * (1 + 1e-10), D, p, I, u, G, gP)
+        vel.append(u.copy())
+        trac.append((-P * np.eye(3) + G + G.T) @ g.nodes[k])
+    scale = np.abs(sig).max()
+    assert np.abs(np.ravel(vel) - so.S @ sig).max() < 1e-8 * scale
+    assert np.abs(np.ravel(trac) - (so.Kp @ sig - sig)).max() < 1e-7 * scale
+
+
+# ---- step 2: one sphere ------------------------------------------------------------------
+
+@pytest.mark.parametrize("p", list(range(1, 13)))
+def test_one_sphere_exact(p):
+    ft = np.array([1.0, -2.0, 3.0, 0.5, 1.5, -1.0])
+    for a, mu in ((1.0, 1.0), (0.3, 2.5), (4.0, 0.1)):
+        A = bim_mobility([[0.1, 0.2, 0.3]], a, p=p, mu=mu)
+        u = A @ ft
+        exact = np.r_[ft[:3] / (6 * np.pi * mu * a), ft[3:] / (8 * np.pi * mu * a ** 3)]
+        assert np.abs(u - exact).max() <= 1e-12 * np.abs(exact).max()
+
+
+# ---- step 3/4: two spheres against the bispherical series --------------------------------
+
+def _two_sphere_lambdas(d, p, axis=(1.0, 2.0, -0.5)):
+    ax = np.asarray(axis) / np.linalg.norm(axis)
+    A = bim_mobility(np.array([[0.0, 0.0, 0.0], d * ax]) + 0.3, 1.0, p=p, eps_gmres=1e-12)
+    f = np.zeros(12)
+    f[:3], f[6:9] = ax, ax
+    lsj = 1.0 / (6 * np.pi * np.dot((A @ f)[:3], ax))
+    f[6:9] = -ax
+    lb = 1.0 / (6 * np.pi * np.dot((A @ f)[:3], ax))
+    return lsj, lb
+
+
+@pytest.mark.parametrize("d, tol", [(2.5, 1e-4), (3.0, 1e-6), (4.0, 1e-6), (6.0, 1e-6)])
+def test_two_spheres_match_series_p8(d, tol):
+    lsj, lb = _two_sphere_lambdas(d, 8)
+    assert abs(lsj / series.stimson_jeffery_lambda(d) - 1) <= tol
+    assert abs(lb / series.brenner_lambda(d) - 1) <= tol
+
+
+def test_two_spheres_spectral_decay_in_p():
+    d = 3.0
+    exact = series.brenner_lambda(d)
+    errs = [abs(_two_sphere_lambdas(d, p)[1] / exact - 1) for p in (2, 4, 6, 8)]
+    assert all(e2 < 0.25 * e1 for e1, e2 in zip(errs, errs[1:])), errs
+
+
+def _cluster(M, seed=0, spacing=2.3):
+    rng = np.random.default_rng(seed)
+    g = np.arange(2) * spacing
+    c = np.array([[x, y, z] for x in g for y in g for z in g])[:M]
+    return c + 0.05 * rng.standard_normal(c.shape), 1.0 + 0.1 * rng.random(M)
+
+
+def test_cluster_near_symmetric_positive_definite():
+    # 6 spheres, radii 1-1.1, smallest gap about 0.38: measured asymmetry 2.5e-4 at p = 6
+    c, r = _cluster(6, spacing=2.6)
+    A = bim_mobility(c, r, p=6, eps_gmres=1e-10)
+    Md = _dense(A)
+    asym = np.linalg.norm(Md - Md.T) / np.linalg.norm(Md)
+    assert asym < 1e-3
+    assert np.linalg.eigvalsh(0.5 * (Md + Md.T)).min() > 0
+    assert len(A.gmres_iterations) == 36 and max(A.gmres_iterations) < 40
+
+
+def test_translation_and_rotation_invariance():
+    c, r = _cluster(4, seed=2, spacing=2.6)
+    rng = np.random.default_rng(5)
+    ft = rng.standard_normal(24)
+    u0 = bim_mobility(c, r, p=6, eps_gmres=1e-12) @ ft
+    u1 = bim_mobility(c + np.array([3.0, -1.0, 7.5]), r, p=6, eps_gmres=1e-12) @ ft
+    assert np.abs(u1 - u0).max() < 1e-10 * np.abs(u0).max()
+    Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    Q *= np.sign(np.linalg.det(Q))
+    ftq = (ft.reshape(-1, 3) @ Q.T).reshape(-1)
+    uq = bim_mobility(c @ Q.T, r, p=6, eps_gmres=1e-12) @ ftq
+    back = (uq.reshape(-1, 3) @ Q).reshape(-1)
+    # the grid is not rotation invariant: agreement is at discretisation accuracy
+    assert np.abs(back - u0).max() < 1e-3 * np.abs(u0).max()
+
+
+def test_far_pairs_use_direct_quadrature_consistently():
+    c = np.array([[0.0, 0.0, 0.0], [40.0, 3.0, -2.0], [2.6, 0.4, 0.1]])
+    A = BimMobility(c, 1.0, p=8, eps_gmres=1e-12)
+    assert A.n_far_pairs > 0 and A.n_near_pairs > 0
+    ft = np.random.default_rng(0).standard_normal(18)
+    u = A @ ft
+    # same configuration with every pair treated by expansions
+    B = BimMobility(c, 1.0, p=8, eps_gmres=1e-12)
+    B._near_ptr, B._near_idx = np.array([0, 2, 4, 6]), np.array([1, 2, 0, 2, 0, 1])
+    B._far_ptr, B._far_idx = np.zeros(4, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    B.n_far_pairs, B.n_near_pairs = 0, 6
+    B._build_blocks()
+    assert np.abs(B @ ft - u).max() < 1e-11 * np.abs(u).max()
+
+
+def test_warm_start_and_iterations_recorded():
+    c, r = _cluster(3)
+    A = bim_mobility(c, r, p=4, eps_gmres=1e-10)
+    ft = np.random.default_rng(1).standard_normal(18)
+    u1 = A @ ft
+    u2 = A @ ft
+    assert np.abs(u1 - u2).max() < 1e-8 * np.abs(u1).max()
+    assert A.gmres_iterations[1] <= 1 < A.gmres_iterations[0]
+    assert all(res < 1e-9 for res in A.residuals)
+    assert np.all(A @ np.zeros(18) == 0)
+
+
+def test_nonconvergence_is_reported():
+    c, r = _cluster(2)
+    A = BimMobility(c, r, p=4, eps_gmres=1e-12, maxiter=1, recycle=0)
+    with pytest.warns(BimConvergenceWarning, match="relative residual"):
+        A @ np.ones(12)
+    B = BimMobility(c, r, p=4, eps_gmres=1e-12, maxiter=1, recycle=0, on_failure="raise")
+    with pytest.raises(RuntimeError, match="relative residual"):
+        B @ np.ones(12)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(p=0), "p = 0"), (dict(p=2.5), "p = 2.5"), (dict(p=True), "p = True"),
+    (dict(eps_gmres=0.0), "eps_gmres"), (dict(eps_gmres=float("nan")), "eps_gmres"),
+    (dict(eps_gmres="x"), "eps_gmres"), (dict(mu=-1.0), "mu"),
+])
+def test_bad_parameters(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        bim_mobility([[0, 0, 0], [3, 0, 0]], 1.0, **kwargs)
+
+
+def test_bad_configurations():
+    with pytest.raises(ValueError, match="overlap"):
+        bim_mobility([[0, 0, 0], [1.5, 0, 0]], 1.0, p=2)
+    with pytest.raises(ValueError, match="shape"):
+        bim_mobility([[0, 0]], 1.0, p=2)
+    with pytest.raises(ValueError, match="radii"):
+        bim_mobility([[0, 0, 0]], -1.0, p=2)
+    A = bim_mobility([[0, 0, 0], [3, 0, 0]], 1.0, p=2)
+    with pytest.raises(ValueError, match="finite"):
+        A @ np.full(12, np.nan)
