@@ -422,7 +422,6 @@ def traction_response(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, center: np.ndarr
                 gn = g[0] * nv[0] + g[1] * nv[1] + g[2] * nv[2]
                 for i in range(3):
                     Hn_i = H[i, 0] * nv[0] + H[i, 1] * nv[1] + H[i, 2] * nv[2]
-                    xH_i = H[i, 0] * x[0] + H[i, 1] * x[1] + H[i, 2] * x[2]
                     # Phi: G = H
                     tf[0, i] = 2.0 * Hn_i
                     # P_alpha: G_ij = 2 x_j g_i + r^2 H_ij
