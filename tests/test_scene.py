@@ -170,7 +170,8 @@ def test_scene_step_uses_eq_defaandb_and_moves_with_u_nc_plus_mdx():
     D = prob.contacts.D.toarray()
     U_nc = Md @ np.concatenate([F, T], axis=1).ravel()
     dt = scene.params.dt
-    np.testing.assert_allclose(prob.lcp.b, prob.contacts.gaps / dt + D.T @ U_nc,
+    np.testing.assert_allclose(prob.lcp.b, (prob.contacts.gaps - scene.params.separation) / dt
+                               + D.T @ U_nc,
                                rtol=1e-10, atol=1e-10)
     res = run_solver(prob.lcp, "bb-pgd", stop="kkt", tol=1e-10)
     assert res.solved and np.any(res.x > 0)
@@ -181,7 +182,7 @@ def test_scene_step_uses_eq_defaandb_and_moves_with_u_nc_plus_mdx():
     o = o0 + dt * np.cross(U[:, 3:], o0)
     np.testing.assert_allclose(scene.orientations, o / np.linalg.norm(o, axis=1)[:, None])
     # the linearised constraint holds after the move: Phi + dt D' U >= 0 (to the tolerance)
-    assert np.all(prob.contacts.gaps + dt * D.T @ U.ravel() >= -1e-8)
+    assert np.all(prob.contacts.gaps + dt * D.T @ U.ravel() >= scene.params.separation - 1e-8)
 
 
 def test_low_fidelity_operators_carry_measured_costs():

@@ -370,7 +370,8 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
                           eps_gmres: float = 1e-8, mu: float = 1.0,
                           low: Union[Sequence[str], Mapping[str, MobilityModel]] = (),
                           x0: Optional[np.ndarray] = None, name: str = "contact",
-                          meta: Optional[dict] = None) -> ContactProblem:
+                          meta: Optional[dict] = None,
+                          separation: float = 0.0) -> ContactProblem:
     """Everything one forward Euler step needs: see :func:`contact_lcp` for the parameters.
 
     Returns
@@ -391,7 +392,11 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
     FT = np.concatenate([F, T], axis=1).ravel()
     U_nc = _apply(mob, FT) if np.any(FT) else np.zeros(6 * M)
     setup = int(bool(np.any(FT)))
-    b = contacts.gaps / dt + contacts.D.T @ U_nc
+    separation = float(separation)
+    if not (np.isfinite(separation) and separation >= 0):
+        raise ValueError(f"separation = {separation} must be a finite number >= 0 (the "
+                         "minimum gap the LCP keeps)")
+    b = (contacts.gaps - separation) / dt + contacts.D.T @ U_nc
     dmd = _DMD(contacts.D, mob)
     lows = _low_models(low, p, eps_gmres)
     high = Operator(dmd.operator(), name="high")
@@ -408,7 +413,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         setup += 1
         low_ops = {k: Operator(op, cost=measure_cost(op), name=k) for k, op in low_ops.items()}
     info = dict(meta or {})
-    info.update(M=M, n=contacts.n, dt=dt, delta=float(delta), mu=mu,
+    info.update(M=M, n=contacts.n, dt=dt, delta=float(delta), separation=separation, mu=mu,
                 model=model if isinstance(model, str) else getattr(model, "__name__", "custom"),
                 p=int(p), eps_gmres=float(eps_gmres),
                 symmetric=model in ("rpy", "self"),
@@ -441,7 +446,7 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
                 model: MobilityModel = "rpy", p: int = 8, eps_gmres: float = 1e-8,
                 mu: float = 1.0, low: Union[Sequence[str], Mapping[str, MobilityModel]] = (),
                 x0: Optional[np.ndarray] = None, name: str = "contact",
-                meta: Optional[dict] = None) -> LCP:
+                meta: Optional[dict] = None, separation: float = 0.0) -> LCP:
     """The collision-resolution LCP of one forward Euler step (eq. defAandb).
 
     Parameters
@@ -473,12 +478,16 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
         Instance name.
     meta : dict, optional
         Extra metadata (step, scene parameters) merged into ``lcp.meta``.
+    separation : float
+        Minimum gap to keep (``>= 0``, normally below ``delta``): the gap function
+        is ``Phi - separation``, so a solved step leaves every candidate pair
+        at least ``separation`` apart to first order (default 0).
 
     Returns
     -------
     LCP
         ``A = D' M D`` as a counted matrix-free operator (one mobility solve per
-        MVP; nothing dense is formed), ``b = (Phi + dt D' U_nc) / dt`` with
+        MVP; nothing dense is formed), ``b = (Phi - s + dt D' U_nc) / dt`` with
         ``U_nc = M [F_ext; T_ext]``, and the low-fidelity operators.
 
     Examples
@@ -489,4 +498,4 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
     (1, 1.0)
     """
     return build_contact_problem(centers, radii, F_ext, T_ext, dt, delta, model, p, eps_gmres,
-                                 mu, low, x0, name, meta).lcp
+                                 mu, low, x0, name, meta, separation).lcp

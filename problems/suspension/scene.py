@@ -93,6 +93,12 @@ class LatticeParams:
         Width of the uniform jitter of each coordinate before scaling, in radii.
     target : float
         Desired candidate pairs per sphere at the start (paper: 1/2).
+    separation : float
+        Minimum gap the LCP keeps between spheres, in length units: the gap
+        function is ``Phi - separation`` (default 0.01, a hundredth of the
+        default radius), so that a correct solve never makes spheres touch and
+        the boundary-integral model (which refuses overlapping spheres) can be
+        evaluated at every step.
     """
 
     m: int = 3
@@ -111,6 +117,7 @@ class LatticeParams:
     spacing: float = 3.0
     jitter: float = 0.5
     target: float = 0.5
+    separation: float = 0.01
 
     def __post_init__(self) -> None:
         def bad(name, why):
@@ -128,7 +135,7 @@ class LatticeParams:
                 bad(name, "must be a finite positive number")
         if not (0 < self.eps_gmres < 1):
             bad("eps_gmres", "must lie in (0, 1)")
-        for name in ("delta", "force", "torque", "jitter", "target"):
+        for name in ("delta", "force", "torque", "jitter", "target", "separation"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 bad(name, "must be a finite non-negative number")
@@ -348,7 +355,8 @@ class LatticeScene:
         P = self.params
         F, T = self.loads()
         problem = build_contact_problem(
-            self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, model=P.model, p=P.p,
+            self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, separation=P.separation,
+            model=P.model, p=P.p,
             eps_gmres=P.eps_gmres, mu=P.mu, low=P.low, name=f"lattice-m{P.m}-step{self.step_index}",
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
         if warm_start and problem.contacts.n:
