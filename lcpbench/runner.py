@@ -35,7 +35,7 @@ from .registry import get_problem, get_solver, make_params
 from .store import RunStore
 from .sweep import RunSpec, Spec, Sweep
 
-__all__ = ["Plan", "plan", "execute", "perform", "instance_reference", "machine_info"]
+__all__ = ["Plan", "plan", "per_low", "execute", "perform", "instance_reference", "machine_info"]
 
 #: Consensus references are computed for explicit instances up to this size.
 REFERENCE_MAX_N = 3000
@@ -64,6 +64,22 @@ def generate(spec: Spec) -> list[LCP]:
     return list(lcps)
 
 
+def per_low(spec: Spec, lcp: LCP) -> list[Spec]:
+    """A multi-fidelity solver spec that names no low operator, once per low of ``lcp``.
+
+    ``bi-pqn`` needs one low operator; on an instance with several (a stored
+    set with p3, p4 and RPY fidelities) the sweep runs it at each, as the
+    paper's table reports Bi-PQN per low fidelity. Specs that name their low
+    operator, and solvers without a ``low`` parameter, are returned as they are.
+    """
+    if "low" not in spec.params or "lows" in spec.params or spec.params["low"] \
+            or len(lcp.low) < 2:
+        return [spec]
+    given = tuple(kv for kv in spec.given if kv[0] != "low")
+    return [Spec(spec.name, given + (("low", k),), {**spec.params, "low": k})
+            for k in sorted(lcp.low)]
+
+
 def plan(sweep: Sweep, progress: bool = False) -> Plan:
     """Expand the sweep into runs (validating every spec first)."""
     solver_specs = sweep.solver_specs()
@@ -78,9 +94,10 @@ def plan(sweep: Sweep, progress: bool = False) -> Plan:
                 if info.multifidelity and not lcp.low:
                     skipped.append(f"{ss.label} on {ps.label}/{lcp.name}: no low-fidelity operator")
                     continue
-                for r in range(sweep.repeat):
-                    runs.append(RunSpec(ps, i, lcp.name or str(i), ss, r, sweep.tol, sweep.stop,
-                                        sweep.max_emvps))
+                for spec in (per_low(ss, lcp) if info.multifidelity else [ss]):
+                    for r in range(sweep.repeat):
+                        runs.append(RunSpec(ps, i, lcp.name or str(i), spec, r, sweep.tol,
+                                            sweep.stop, sweep.max_emvps))
     return Plan(sweep, runs, instances, skipped)
 
 

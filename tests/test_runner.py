@@ -1,5 +1,6 @@
 """lcpbench run: sweep expansion, store, resume, timeouts, failure rows, report."""
 
+import dataclasses
 import json
 import re
 
@@ -82,6 +83,40 @@ def test_reference_errors_are_recorded(tmp_path):
 def test_multifidelity_solvers_skip_instances_without_low():
     p = plan(Sweep(solvers=["bi-pqn"], problems=[SMALL]))
     assert not p.runs and len(p.skipped) == 2 and "no low-fidelity" in p.skipped[0]
+
+
+def test_bi_pqn_without_a_named_low_runs_once_per_low_operator(tmp_path):
+    from lcpbench import LCP, register_problem
+    from lcpbench.problems.random import with_perturbed_lows
+
+    from lcp_cases import planted
+
+    @dataclasses.dataclass(frozen=True)
+    class TwoLowParams:
+        """Parameters.
+
+        Parameters
+        ----------
+        n : int
+            Size.
+        """
+
+        n: int = 12
+
+    @register_problem("test-two-lows", TwoLowParams)
+    def two_lows(p):
+        """One planted LCP with two low operators."""
+        return [with_perturbed_lows(LCP(*planted(p.n), name="two-lows"), seed=0)]
+
+    p = plan(Sweep(solvers=["bi-pqn", "bi-pqn:low=low", "multi-pqn"], problems=["test-two-lows"]))
+    labels = sorted(r.solver.label for r in p.runs)
+    assert labels == ["bi-pqn:low=low", "bi-pqn:low=low", "bi-pqn:low=lower", "multi-pqn"]
+    assert len({r.run_id for r in p.runs}) == 3       # the explicit and expanded p4 are one run
+    store = RunStore(tmp_path / "s")
+    execute(p, store, quiet=True)
+    res = store.results()
+    assert res["solved"].all() and set(res["solver"]) == {"bi-pqn:low=low", "bi-pqn:low=lower",
+                                                         "multi-pqn"}
 
 
 def test_cli_run_resume_refusal_and_report(tmp_path, capsys):
