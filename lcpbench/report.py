@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import plots, tables
+from . import fidelity, plots, tables
 from .store import RunStore, atomic_write
 
 __all__ = ["render_report"]
@@ -138,6 +138,10 @@ def render_report(path, baseline: str = "bb-pgd") -> Path:
         on = res[res["kind"] == "online"]
         parts.append(fig(plots.boxplot_svg(on, "problem", "emvps", "solver",
                                            "E-MVPs per step, per scene", "E-MVPs")))
+
+    stored_sets = fidelity.stored_set_specs(res)
+    if stored_sets:
+        parts.append(fidelity.fidelity_section(stored_sets))
 
     page = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             "<title>lcpbench report</title><style>" + _CSS + "</style></head><body>"

@@ -56,7 +56,7 @@ from lcpbench.operator import dense_uncounted
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "shipped_sets", "parse_instances", "FORMAT", "VERSION",
-           "COST_CONVENTION", "DATA_DIR", "ShippedSetParams", "register_shipped_sets"]
+           "COST_CONVENTION", "DATA_DIR", "ShippedSetParams", "register_shipped_sets", "set_problem_name"]
 
 #: Value of the root attribute ``format``.
 FORMAT = "lcpbench.set"
@@ -679,7 +679,8 @@ class ShippedSetParams:
     instances: str = ""
 
 
-def _problem_name(stem: str) -> str:
+def set_problem_name(stem: str) -> str:
+    """The problem family name of the shipped set ``stem``: ``set-<stem>``."""
     return "set-" + re.sub(r"[^a-z0-9]+", "-", stem.lower()).strip("-")
 
 
@@ -691,7 +692,7 @@ def register_shipped_sets() -> list[str]:
     """
     names = []
     for stem, path in shipped_sets().items():
-        pname = _problem_name(stem)
+        pname = set_problem_name(stem)
 
         def load(p: ShippedSetParams, _path: Path = path):
             return stored(StoredParams(path=str(_path), instances=p.instances))
