@@ -4,6 +4,8 @@ Usage::
 
     python benchmarks/fuzz.py --cases 10000 --jobs 2     # the number in docs/benchmarks.md
     python benchmarks/fuzz.py --cases 40                  # what .ci/run runs
+    python benchmarks/fuzz.py --start 5000 --cases 5000 --save part2.json   # one slice
+    python benchmarks/fuzz.py --merge part1.json part2.json                  # the whole table
 
 Case ``i`` is generated from the seed ``(seed, i)`` as one of four kinds, in turn:
 random SPD (condition number 10^U(0, 6)), singular PSD (``A = J J'`` with rank
@@ -23,6 +25,7 @@ crash, printing the case and solver to reproduce it.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import traceback
 from collections import Counter
@@ -98,18 +101,25 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=1000, help="number of random LCPs")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--start", type=int, default=0,
+                    help="first case index (to split a sweep into slices)")
+    ap.add_argument("--save", metavar="FILE.json", help="also write the counts to this file")
+    ap.add_argument("--merge", nargs="+", metavar="FILE.json",
+                    help="print the table of saved slices instead of running")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
     ap.add_argument("--max-emvps", type=float, default=1000.0,
                     help="budget per solve (default 1000: a false 'converged' does not need "
                          "a long run to show, and runs that exhaust it are honest failures)")
     args = ap.parse_args()
-    if args.cases < 1 or args.jobs < 1:
-        ap.error("--cases and --jobs must be >= 1")
+    if args.merge:
+        return merge(args.merge)
+    if args.cases < 1 or args.jobs < 1 or args.start < 0:
+        ap.error("--cases and --jobs must be >= 1, --start >= 0")
     from tqdm import tqdm
 
     counts: Counter = Counter()
     problems: list[str] = []
-    work = [(i, args.seed, args.max_emvps) for i in range(args.cases)]
+    work = [(i, args.seed, args.max_emvps) for i in range(args.start, args.start + args.cases)]
     with Pool(args.jobs) as pool:
         for rows in tqdm(pool.imap_unordered(run_case, work, chunksize=4), total=len(work),
                          unit="case", file=sys.stderr):
@@ -117,9 +127,34 @@ def main() -> int:
                 counts[(name, outcome)] += 1
                 if outcome in ("false", "crash"):
                     problems.append(f"{name} on {kind} {detail}")
+    head = (f"cases {args.start}..{args.start + args.cases - 1} (seed {args.seed}), tol 1e-8, "
+            f"paper's stop rule, budget {args.max_emvps:g} E-MVPs per solve")
+    if args.save:
+        with open(args.save, "w") as fh:
+            json.dump({"head": head, "cases": args.cases, "problems": problems,
+                       "counts": [[n, o, v] for (n, o), v in counts.items()]}, fh)
+    return report(head, counts, problems)
+
+
+def merge(paths: list[str]) -> int:
+    """Print the table of slices saved with ``--save``."""
+    counts: Counter = Counter()
+    problems: list[str] = []
+    heads = []
+    for path in paths:
+        with open(path) as fh:
+            part = json.load(fh)
+        heads.append(part["head"])
+        problems += part["problems"]
+        for n, o, v in part["counts"]:
+            counts[(n, o)] += v
+    return report("; ".join(heads), counts, problems)
+
+
+def report(head: str, counts: Counter, problems: list[str]) -> int:
+    """Print the table; 1 if any run was a false convergence or a crash."""
     names = sorted({n for n, _ in counts})
-    print(f"{args.cases} cases (seed {args.seed}), tol 1e-8, paper's stop rule, "
-          f"budget {args.max_emvps:g} E-MVPs per solve\n")
+    print(head + "\n")
     print("| solver | solved | honest failure | false converged | crash |")
     print("|---|---|---|---|---|")
     for n in names:
