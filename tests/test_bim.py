@@ -3,16 +3,29 @@
 from __future__ import annotations
 
 import importlib.util
+import itertools
 import pathlib
 
 import numpy as np
 import pytest
-
-from problems.suspension.bim import BimConvergenceWarning, BimMobility, bim_mobility
-from problems.suspension.kernels import unit_field
-from problems.suspension.sphere_vsh import (expansion_coefficients, rigid_density,
-                                            s_eigenvalue, self_operators, sphere_grid,
-                                            traction_eigenvalue, vsh_basis)
+from lcpbench.problems.suspension.bim import (
+    BimConvergenceWarning,
+    BimMobility,
+    bim_mobility,
+)
+from lcpbench.problems.suspension.kernels import unit_field
+from lcpbench.problems.suspension.sphere_vsh import (
+    expansion_coefficients,
+    grid_levels,
+    quadrature_errors,
+    quadrature_radius,
+    rigid_density,
+    s_eigenvalue,
+    self_operators,
+    sphere_grid,
+    traction_eigenvalue,
+    vsh_basis,
+)
 
 _SERIES = pathlib.Path(__file__).with_name("stokes_series.py")
 _spec = importlib.util.spec_from_file_location("stokes_series_for_bim", _SERIES)
@@ -186,10 +199,8 @@ def test_far_pairs_use_direct_quadrature_consistently():
     u = A @ ft
     # same configuration with every pair treated by expansions
     B = BimMobility(c, 1.0, p=8, eps_gmres=1e-12)
-    B._near_ptr, B._near_idx = np.array([0, 2, 4, 6]), np.array([1, 2, 0, 2, 0, 1])
-    B._far_ptr, B._far_idx = np.zeros(4, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    B.n_far_pairs, B.n_near_pairs = 0, 6
-    B._build_blocks()
+    B._setup_interactions(all_expansion=True)
+    assert B.n_far_pairs == 0 and B.n_near_pairs == 6
     assert np.abs(B @ ft - u).max() < 1e-11 * np.abs(u).max()
 
 
@@ -235,3 +246,71 @@ def test_bad_configurations():
     A = bim_mobility([[0, 0, 0], [3, 0, 0]], 1.0, p=2)
     with pytest.raises(ValueError, match="finite"):
         A @ np.full(12, np.nan)
+
+
+# ---- accuracy-driven near/far split, source-grid levels, FMM far field ---------------------
+
+@pytest.mark.parametrize("p", [4, 8])
+def test_quadrature_radius_criterion(p):
+    """Just beyond the measured radius of every source grid, direct quadrature agrees with
+    the exact expansion to quad_tol (fresh densities and directions); well inside it does not."""
+    tol = 1e-8
+    for q in grid_levels(p):
+        r = quadrature_radius(p, q, tol)
+        errs = quadrature_errors(p, q, np.array([r, 1.1 * r, 2.0 * r]), seed=7)
+        assert errs.max() <= tol, (q, r, errs)
+        assert quadrature_errors(p, q, np.array([0.7 * r]), seed=7)[0] > 0.05 * tol
+    radii = [quadrature_radius(p, q, tol) for q in grid_levels(p)]
+    assert all(b <= a for a, b in itertools.pairwise(radii))     # finer grids reach closer
+
+
+def _random_cluster(M, seed, box):
+    rng = np.random.default_rng(seed)
+    c = [rng.uniform(0, box, 3)]
+    while len(c) < M:
+        x = rng.uniform(0, box, 3)
+        if min(np.linalg.norm(x - y) for y in c) > 2.3:
+            c.append(x)
+    return np.array(c)
+
+
+def test_levels_and_blocks_agree_with_all_expansions():
+    """The product with grid levels + blocks + on-the-fly expansions equals the product with
+    exact expansions for every pair, to quad_tol."""
+    c = _random_cluster(6, 3, 9.0)
+    A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3)
+    assert A.n_block_pairs > 0 and A._fly_idx.size > 0 and A.n_far_pairs > 0
+    assert sum(v > 0 for v in A.pairs_per_level.values()) >= 2
+    s = np.random.default_rng(0).standard_normal(A.M * 3 * A._N)
+    s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
+    B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8)
+    B._setup_interactions(all_expansion=True)
+    ya, yb = A._apply_bie(s), B._apply_bie(s)
+    assert np.abs(ya - yb).max() <= 20 * A.quad_tol * np.abs(s).max()
+
+
+def test_fmm_far_field_matches_direct():
+    pytest.importorskip("fmm3dpy")
+    c = _random_cluster(10, 4, 14.0)
+    ft = np.random.default_rng(2).standard_normal(60)
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-9)
+    F = BimMobility(c, 1.0, p=4, eps_gmres=1e-9, far="fmm")
+    s = np.random.default_rng(1).standard_normal(A.M * 3 * A._N)
+    assert np.abs(F._apply_bie(s) - A._apply_bie(s)).max() <= 1e-9 * np.abs(s).max()
+    ua, uf = A @ ft, F @ ft
+    assert np.abs(uf - ua).max() <= 1e-8 * np.abs(ua).max()
+    with pytest.raises(ValueError, match="far"):
+        BimMobility(c, 1.0, p=4, far="tree")
+
+
+def test_relaxed_gmres_reaches_true_residual():
+    """Relaxed products (looser quadrature late in GMRES) still give a full-accuracy
+    residual below eps_gmres and the same mobility as a much tighter solve."""
+    c = _random_cluster(8, 5, 8.0)
+    ft = np.random.default_rng(3).standard_normal(48)
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-8)
+    assert len(A.tolerance_ladder) == 7 and A.tolerance_ladder[0] == pytest.approx(1e-10)
+    u = A @ ft
+    assert A.residuals[-1] <= 1e-8
+    ref = BimMobility(c, 1.0, p=4, eps_gmres=1e-12) @ ft
+    assert np.abs(u - ref).max() <= 1e-7 * np.abs(ref).max()

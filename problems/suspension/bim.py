@@ -15,21 +15,40 @@ says the flow inside every sphere is traction free, hence rigid.  Velocities
 are read off as the surface mean of ``u`` and ``3/(8 pi a^4)`` times the
 integral of ``(y - c) x u``.
 
-Interactions between spheres:
+Interactions between spheres (ordered pair (i, j), ``rho = (d_ij - a_i)/a_j``), split by
+accuracy, not by a fixed distance:
 
-* spheres closer than ``r_far`` (``(d_ij - a_i)/a_j < r_far``): exact exterior
-  spherical-harmonic expansions of the band-limited density (Corona &
-  Veerapaneni, JCP 2018), evaluated at the grid nodes of sphere i in compiled
-  code.  They are exact for any gap: there is no near-singular quadrature
-  error, only the density's own truncation error at order p.
-* farther spheres: direct smooth quadrature on the source grid (numba), used
-  only where its error ``~ r^-(p+2)`` is below about 1e-13.
+* direct smooth quadrature (compiled, vectorised, parallel over targets) on a source
+  grid of order q in ``ceil(p/2), ceil(3p/4)`` (density truncated to degree q),
+  ``p`` (native), ``p+2, ..., 2p`` (density interpolated by spherical-harmonic
+  synthesis): the coarsest grid whose *measured* quadrature error at distance
+  ``rho`` is below ``quad_tol`` per unit density
+  (:func:`sphere_vsh.quadrature_radius`).  ``quad_tol`` defaults to
+  ``eps_gmres / 100``, also below the order-p discretisation error for gaps
+  >= 0.1a (DESIGN.md);
+* closer pairs: exact exterior spherical-harmonic expansions of the band-limited
+  density (Corona & Veerapaneni, JCP 2018), stored as dense coefficient blocks
+  (``3N x n_vsh``: traction on sphere i per VSH coefficient of sphere j) within
+  ``near_block_mb``, closest first; pairs that would need a grid of order >= 1.5 p
+  also get blocks while the budget lasts (a block product is cheaper than that
+  sum); expansion pairs beyond the budget are evaluated on the fly (same values);
+* optional far field ``far="fmm"``: fmm3dpy's Stokes FMM over all native grid
+  points, with the self and non-native pairs removed by direct sums and replaced
+  by their accurate values (:mod:`fmm`); worth it only for large M.
 * the off-sphere velocity read-off uses the same expansions at the centres with
   Faxen's laws ``U = u(c) + a^2/6 lap u(c)``, ``Omega = curl u(c)/2``, which are
   the exact surface mean and rotation of a Stokes flow regular in the ball.
 
-The setup done once per configuration (grids, target points, near and far
-pair lists, scale factors) is reused by every product.  Accuracy to expect
+GMRES is relaxed (inexact Krylov): once the residual estimate has dropped to
+``10^-k``, products use the split for ``quad_tol * 10^k`` (at most 1e-4),
+because later Krylov directions enter the solution with weights of the size of
+the residual; residuals at restarts and the reported final residual use full
+accuracy.  Dense per-sphere products and GMRES vector work run in compiled loops
+rather than threaded BLAS, whose threads would compete with the compiled parallel
+kernels on few cores.
+
+The setup done once per configuration (grids, pair lists per accuracy rung,
+source points, blocks) is reused by every product.  Accuracy to expect
 (DESIGN.md): p = 8 gives about 1e-7 at gap 1a and 1e-5 at gap 0.5a, and
 degrades near contact (O(1) squeeze errors at gap 0.01a): p = 8 is not ground
 truth near contact.
@@ -41,25 +60,55 @@ import warnings
 from collections import deque
 
 import numpy as np
-from scipy.sparse.linalg import LinearOperator, gmres
+from scipy.sparse.linalg import LinearOperator
 
 from .geometry import check_configuration, check_no_overlap, check_viscosity
-from .kernels import center_readout, direct_traction, traction_expansion, traction_response
-from .sphere_vsh import (_expansion_factors, expansion_coefficients, self_operators,
-                         sphere_grid, vsh_basis)
+from .kernels import (
+    apply_blocks,
+    apply_blocks_serial,
+    center_readout,
+    combine_rows,
+    direct_traction_ranges,
+    direct_traction_ranges_serial,
+    direct_traction_skip,
+    orthogonalize,
+    rows_times,
+    rows_times_serial,
+    synthesize_forces,
+    synthesize_forces_serial,
+    traction_expansion,
+    traction_response_batch,
+)
+from .sphere_vsh import (
+    _expansion_factors,
+    default_quad_tol,
+    expansion_coefficients,
+    grid_levels,
+    quadrature_radius,
+    sampled_basis,
+    self_operators,
+    sphere_grid,
+    vsh_basis,
+)
 
-__all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning", "far_ratio"]
+__all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning", "far_ratio", "gmres_solve"]
+
+_PARALLEL_WORK = 4e6
+"""Products with fewer multiply-adds than this run in the serial build of a kernel."""
+
+_RELAX_STEP = 10.0
+"""Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
 
 
 class BimConvergenceWarning(RuntimeWarning):
     """GMRES stopped before reaching the requested tolerance."""
 
 
-def far_ratio(p: int, tol: float = 1e-13) -> float:
-    """Scaled distance ``r = (d - a_i)/a_j`` beyond which direct quadrature on the
-    order-p grid is accurate to about ``tol`` relative (error ~ r^-(p+2)); never
-    below 4."""
-    return max(4.0, tol ** (-1.0 / (p + 2)))
+def far_ratio(p: int, tol: float = 1e-10) -> float:
+    """Scaled distance ``r = (d - a_i)/a_j`` beyond which direct quadrature on the native
+    order-p grid is accurate to ``tol`` per unit density (measured, see
+    :func:`sphere_vsh.quadrature_radius`)."""
+    return quadrature_radius(_check_p(p), int(p), float(tol))
 
 
 def _check_p(p) -> int:
@@ -85,6 +134,82 @@ def _csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
     ptr[1:] = np.cumsum([len(x) for x in lists])
     idx = np.array([j for x in lists for j in x], dtype=np.int64)
     return ptr, idx
+
+
+def gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int,
+                maxiter: int, rungs: int = 1, step: float = 100.0,
+                relax: float = 1.0) -> tuple[np.ndarray, int, float]:
+    """Restarted, optionally relaxed GMRES (Givens rotations, CGS2 Arnoldi) for ``A x = b``.
+
+    ``matvec(x, k)`` applies A with accuracy rung ``k`` (0 = full accuracy, rung k
+    ``step**k`` times less accurate).  Relaxation (inexact Krylov; Bouras & Fraysse 2005,
+    Simoncini & Szyld 2003): once the relative residual estimate has dropped to
+    ``relax / step**k``, the product error can grow by ``step**k`` without spoiling the
+    final residual, because later Krylov directions enter the solution with weights of
+    the size of the residual.  Residuals at restarts and at the end are always measured
+    with rung 0, so a relaxation that went too far only costs iterations.
+
+    Stops when the relative residual ``||b - A x|| / ||b||`` (the recurrence estimate,
+    re-measured with full accuracy) is at most ``rtol`` or after ``maxiter`` inner
+    iterations.  Vector work runs in serial compiled loops: on few cores, BLAS
+    threads would compete with the parallel compiled kernels of the product.
+
+    Returns
+    -------
+    x, iterations, relative residual estimate
+    """
+    nb = float(np.linalg.norm(b))
+    x = np.array(x0, dtype=float)
+    n = b.size
+    m = max(1, min(restart, n))
+    V = np.empty((m + 1, n))
+    H = np.zeros((m + 1, m))
+    cs, sn = np.zeros(m), np.zeros(m)
+    its = 0
+    res = np.inf
+    while True:
+        r = b - matvec(x, 0)
+        beta = float(np.sqrt(np.dot(r, r)))
+        res = beta / nb
+        if res <= rtol or its >= maxiter:
+            return x, its, res
+        V[0] = r / beta
+        g = np.zeros(m + 1)
+        g[0] = beta
+        k = 0
+        while k < m and its < maxiter:
+            est = abs(g[k]) / nb
+            rung = 0
+            while rung + 1 < rungs and est * step ** (rung + 1) <= relax:
+                rung += 1
+            w = matvec(V[k], rung)
+            hn = orthogonalize(V, k + 1, w, H[:, k])
+            H[k + 1, k] = hn
+            for j in range(k):                       # apply previous rotations
+                t = cs[j] * H[j, k] + sn[j] * H[j + 1, k]
+                H[j + 1, k] = -sn[j] * H[j, k] + cs[j] * H[j + 1, k]
+                H[j, k] = t
+            den = np.hypot(H[k, k], hn)
+            cs[k], sn[k] = (1.0, 0.0) if den == 0.0 else (H[k, k] / den, hn / den)
+            H[k, k] = den
+            H[k + 1, k] = 0.0
+            g[k + 1] = -sn[k] * g[k]
+            g[k] = cs[k] * g[k]
+            its += 1
+            k += 1
+            if hn > 0.0:
+                V[k] = w / hn
+            if abs(g[k]) / nb <= rtol or hn == 0.0:
+                break
+        y = np.zeros(k)
+        for i in range(k - 1, -1, -1):               # back substitution
+            y[i] = (g[i] - H[i, i + 1:k] @ y[i + 1:]) / H[i, i]
+        combine_rows(V, y, x)
+        if abs(g[k]) / nb <= rtol:
+            r = b - matvec(x, 0)
+            res = float(np.sqrt(np.dot(r, r))) / nb
+            if res <= rtol or its >= maxiter:
+                return x, its, res
 
 
 class BimMobility(LinearOperator):
@@ -113,8 +238,15 @@ class BimMobility(LinearOperator):
         Maximum total number of GMRES iterations per product.
     near_block_mb : float
         Memory budget (MB) for the dense near-field blocks built once per
-        configuration; the closest pairs get blocks first, the remaining
-        expansion pairs are evaluated on the fly (same values, slower).
+        configuration (``3N x n_vsh`` doubles per pair, 0.8 MB at p = 8); the
+        closest pairs get blocks first, the remaining expansion pairs are
+        evaluated on the fly (same values, slower).
+    quad_tol : float, optional
+        Accuracy (per unit density) of the quadrature between spheres; default
+        ``eps_gmres / 100`` (clamped to [1e-15, 1e-4]).
+    far : {"direct", "fmm"}
+        Far-field engine: compiled direct sums, or fmm3dpy's ``stfmm3d`` (extra
+        ``fmm``; pays off only beyond roughly 50-100k grid points).
 
     Attributes
     ----------
@@ -123,14 +255,24 @@ class BimMobility(LinearOperator):
     residuals : list of float
         Final relative residual ``||b - A sigma|| / ||b||`` of every product.
     n_far_pairs, n_near_pairs : int
-        Ordered pairs handled by direct quadrature and by expansions.
+        Ordered pairs handled by direct quadrature (not blocked) and pairs too
+        close for any source grid (expansions).
     n_block_pairs : int
-        Expansion pairs whose dense block is stored.
+        Pairs whose dense block is stored.
+    pairs_per_level : dict
+        Source-grid order -> ordered pairs summed directly on it at full accuracy
+        (pairs with a stored block not counted).
+    level_radii : dict
+        Source-grid order -> scaled distance beyond which it is accurate to ``quad_tol``.
+    tolerance_ladder : tuple of float
+        Quadrature accuracies used by relaxed GMRES (first = ``quad_tol``).
     """
 
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
                  mu: float = 1.0, on_failure: str = "warn", recycle: int = 8,
-                 maxiter: int = 500, near_block_mb: float = 384.0) -> None:
+                 maxiter: int = 500, near_block_mb: float = 2048.0,
+                 quad_tol: float | None = None, far: str = "direct",
+                 fmm_min_points: int = 0) -> None:
         c, r = check_configuration(centers, radii)
         self.p = _check_p(p)
         self.eps_gmres = _check_eps(eps_gmres)
@@ -138,6 +280,17 @@ class BimMobility(LinearOperator):
         check_no_overlap(c, r, "bim")
         if on_failure not in ("warn", "raise"):
             raise ValueError(f"on_failure = {on_failure!r}; use 'warn' or 'raise'")
+        if far not in ("direct", "fmm"):
+            raise ValueError(f"far = {far!r}; use 'direct' (compiled direct sums) or 'fmm' "
+                             "(fmm3dpy.stfmm3d, install the extra 'fmm')")
+        self.quad_tol = default_quad_tol(self.eps_gmres) if quad_tol is None else float(quad_tol)
+        if not (np.isfinite(self.quad_tol) and 0 < self.quad_tol < 1):
+            raise ValueError(f"quad_tol = {quad_tol!r} must be a number in (0, 1), e.g. 1e-10 "
+                             "(accuracy of the quadrature between spheres)")
+        if far == "fmm":
+            from .fmm import check_fmm
+            check_fmm()
+        self.far = far
         self.on_failure = on_failure
         self.maxiter = int(maxiter)
         M = c.shape[0]
@@ -151,32 +304,114 @@ class BimMobility(LinearOperator):
         self._tgt_pts = np.ascontiguousarray((c[:, None, :] + r[:, None, None] * nodes[None]).reshape(-1, 3))
         self._tgt_nrm = np.ascontiguousarray(np.tile(nodes, (M, 1)))
         self._tgt_sphere = np.repeat(np.arange(M, dtype=np.int64), N)
-        self._src_pts = self._tgt_pts.reshape(M, N, 3)
-        self._src_w = self._grid.weights[None, :, None] * (r ** 2)[:, None, None]
-        # pair classification by scaled distance of sphere i's surface from centre j
-        rfar = far_ratio(self.p)
-        near: list[list[int]] = [[] for _ in range(M)]
-        far: list[list[int]] = [[] for _ in range(M)]
-        if M > 1:
-            d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
-            rmin = (d - r[:, None]) / r[None, :]
-            for i in range(M):
-                for j in range(M):
-                    if i != j:
-                        (far if rmin[i, j] >= rfar else near)[i].append(j)
-        self._near_ptr, self._near_idx = _csr(near)
-        self._far_ptr, self._far_idx = _csr(far)
-        self.n_near_pairs = int(self._near_idx.size)
-        self.n_far_pairs = int(self._far_idx.size)
         self.near_block_mb = float(near_block_mb)
         self._self_block = np.ascontiguousarray((self._so.Kp + self._so.L).T)
         self._precond_T = np.ascontiguousarray(self._so.precond.T)
         self._read_S = self._so.readout @ self._so.S          # (6, 3N) unit sphere
         self._basis = vsh_basis(self.p)
-        self._build_blocks()
+        self._analysis_T = np.ascontiguousarray(self._basis.A.T)
+        self._setup_interactions()
         self._history: deque = deque(maxlen=max(int(recycle), 0))
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
+
+    # ---- pair classification ----------------------------------------------------------------
+    def _setup_interactions(self, all_expansion: bool = False) -> None:
+        """Split the ordered pairs (i, j) by ``rho = (d_ij - a_i)/a_j``: direct quadrature on
+        the coarsest source grid (:func:`sphere_vsh.grid_levels`) accurate to the
+        tolerance there (:func:`sphere_vsh.quadrature_radius`), once per rung of the
+        tolerance ladder, else exact expansions (dense blocks within ``near_block_mb``,
+        the rest on the fly).  ``all_expansion`` puts every pair in the last group
+        (for testing)."""
+        M, p = self.M, self.p
+        c, r = self.centers, self.radii
+        levels = grid_levels(p)
+        # accuracy ladder for relaxed (inexact) GMRES: quad_tol * RELAX_STEP^k <= 1e-4
+        tols = [self.quad_tol]
+        if self.far == "direct":
+            while tols[-1] * _RELAX_STEP <= 1e-4 * (1 + 1e-9) and len(tols) < 12:
+                tols.append(tols[-1] * _RELAX_STEP)
+        self.tolerance_ladder = tuple(tols)
+        rho = np.full((M, M), np.inf)
+        if M > 1:
+            d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
+            rho = (d - r[:, None]) / r[None, :]
+            np.fill_diagonal(rho, np.inf)
+
+        def classify(tol: float) -> tuple[np.ndarray, np.ndarray]:
+            if M == 1:                                     # no pairs: nothing to measure
+                radius = np.full(len(levels), np.inf)
+            else:
+                radius = np.minimum.accumulate([quadrature_radius(p, q, tol) for q in levels])
+            lv = np.full((M, M), -2, dtype=np.int64)       # -1: self, -2: expansion
+            for L in range(len(levels) - 1, -1, -1):
+                lv[rho >= radius[L]] = L
+            np.fill_diagonal(lv, -1)
+            return lv, radius
+
+        level_of, radius = classify(self.quad_tol)
+        native = levels.index(p)
+        self._native = native
+        if self.far == "fmm":       # the FMM works on the native grid: no coarser levels
+            level_of[(level_of >= 0) & (level_of < native)] = native
+        if all_expansion:
+            level_of[:] = -2
+            np.fill_diagonal(level_of, -1)
+        self.level_radii = dict(zip(levels, radius.tolist()))
+        ladder_levels = [level_of]
+        for tol in tols[1:]:
+            lv, _ = classify(tol)
+            ladder_levels.append(np.where(level_of == -2, -2, lv))   # expansion pairs stay
+        self._levels = levels
+        self._level_of = level_of
+        self._build_blocks()
+        level_of = np.where(self._blocked, -2, level_of)
+        ladder_levels = [np.where(self._blocked, -2, lv) for lv in ladder_levels]
+        # sources per level: the spheres any rung of the ladder uses at that level
+        self._lvl_spheres, self._lvl_base = [], []
+        base = 0
+        for L, q in enumerate(levels):
+            used = np.nonzero(np.any([(lv == L).any(axis=0) for lv in ladder_levels], axis=0))[0]
+            if L == native and self.far == "fmm":
+                used = np.arange(M)
+            self._lvl_spheres.append(used)
+            self._lvl_base.append(base)
+            base += used.size * sphere_grid(q).size
+        self._n_src = base
+        xyz = np.empty((3, base))
+        self._src_scale = []
+        slot = np.full((len(levels), M), -1, dtype=np.int64)
+        for L, q in enumerate(levels):
+            g = sphere_grid(q)
+            J = self._lvl_spheres[L]
+            b0 = self._lvl_base[L]
+            pts = c[J, None, :] + r[J, None, None] * g.nodes[None]
+            xyz[:, b0:b0 + J.size * g.size] = pts.reshape(-1, 3).T
+            self._src_scale.append(np.ascontiguousarray((r[J] ** 2)[:, None] * g.weights[None, :]))
+            slot[L, J] = b0 + np.arange(J.size) * g.size
+        self._src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
+        self._synth = [None if q == p or self._lvl_spheres[L].size == 0
+                       else np.ascontiguousarray(sampled_basis(p, q).T)
+                       for L, q in enumerate(levels)]
+        nq = np.array([sphere_grid(q).size for q in levels], dtype=np.int64)
+
+        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
+            ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
+            L = lv[ii, jj]
+            start = slot[L, jj]
+            ptr = np.searchsorted(ii, np.arange(M + 1)).astype(np.int64)
+            return ptr, start.astype(np.int64), (start + nq[L]).astype(np.int64)
+
+        if self.far == "fmm":
+            # FMM sums all native points; remove its native self and non-native pairs
+            self._dir_ranges = [ranges(level_of, lambda lv: lv > native)]
+            self._fmm_sub = ranges(np.where(level_of == native, -2, native),
+                                   lambda lv: lv == native)
+        else:
+            self._dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
+        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(levels)}
+        self.n_far_pairs = int((level_of >= 0).sum())
+        self.n_near_pairs = int((self._level_of == -2).sum())
 
     # ---- near-field blocks ----------------------------------------------------------------
     def _build_blocks(self) -> None:
@@ -188,8 +423,12 @@ class BimMobility(LinearOperator):
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)
         cfac = b.to_complex[flat, np.arange(nv)]
-        pairs = [(i, int(j)) for i in range(M)
-                 for j in self._near_idx[self._near_ptr[i]:self._near_ptr[i + 1]]]
+        # candidates: expansion pairs, then pairs whose quadrature needs a source grid of
+        # order >= 1.5 p (a stored block is then cheaper per product than the sum)
+        lv = self._level_of
+        fine = [L for L, q in enumerate(self._levels) if 2 * q >= 3 * p]
+        ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
+        pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
             d = np.array([np.linalg.norm(self.centers[i] - self.centers[j]) - self.radii[i]
                           for i, j in pairs]) / np.array([self.radii[j] for _, j in pairs])
@@ -197,54 +436,110 @@ class BimMobility(LinearOperator):
         per_block = 3 * N * nv * 8 / 2 ** 20
         nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
         blocked, rest = pairs[:nb], pairs[nb:]
+        blocked.sort()                                     # grouped by target sphere
         fac = np.ascontiguousarray(_expansion_factors(p))
         E = np.empty((len(blocked), 3 * N, nv))
-        resp = np.empty((N, 3, p + 1, p + 1, 3), dtype=np.complex128)
         nodes = self._tgt_nrm[:N]
-        for k, (i, j) in enumerate(blocked):
-            traction_response(self._tgt_pts[i * N:(i + 1) * N], nodes, self.centers[j],
-                              float(self.radii[j]), p, fac, resp)
-            R = resp.transpose(0, 4, 1, 2, 3).reshape(3 * N, -1)
-            E[k] = (R[:, flat] * cfac[None, :]).real
+        chunk = max(1, int(64e6 // (N * 9 * (p + 1) ** 2 * 16)))      # ~64 MB of responses
+        for k0 in range(0, len(blocked), chunk):
+            part = blocked[k0:k0 + chunk]
+            ii = np.array([i for i, _ in part])
+            jj = np.array([j for _, j in part])
+            tgt = self._tgt_pts.reshape(M, N, 3)[ii].reshape(-1, 3)
+            resp = np.empty((tgt.shape[0], 3, p + 1, p + 1, 3), dtype=np.complex128)
+            traction_response_batch(np.ascontiguousarray(tgt),
+                                    np.ascontiguousarray(np.tile(nodes, (len(part), 1))),
+                                    np.ascontiguousarray(np.repeat(self.centers[jj], N, axis=0)),
+                                    np.repeat(self.radii[jj], N), p, fac, resp)
+            R = resp.reshape(len(part), N, -1, 3).transpose(0, 1, 3, 2).reshape(len(part), 3 * N, -1)
+            E[k0:k0 + len(part)] = (R[:, :, flat] * cfac[None, None, :]).real
         self._blocks = E
         self._block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
         self._block_src = np.array([j for _, j in blocked], dtype=np.int64)
+        self._block_ptr = np.searchsorted(self._block_tgt, np.arange(M + 1)).astype(np.int64)
         lists: list[list[int]] = [[] for _ in range(M)]
         for i, j in rest:
-            lists[i].append(j)
+            if self._level_of[i, j] == -2:
+                lists[i].append(j)
+        self._blocked = np.zeros((M, M), dtype=bool)
+        for i, j in blocked:
+            self._blocked[i, j] = True
         self._fly_ptr, self._fly_idx = _csr(lists)
         self.n_block_pairs = len(blocked)
-        self._analysis_T = np.ascontiguousarray(b.A.T)
 
     # ---- the boundary integral operator -------------------------------------------------
-    def _apply_bie(self, sigma: np.ndarray) -> np.ndarray:
-        """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities."""
+    def _rows(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
+        """``X @ W`` for the small dense products of every product (no BLAS threads)."""
+        out = np.zeros((X.shape[0], W.shape[1]))
+        fn = rows_times if X.size * W.shape[1] > _PARALLEL_WORK else rows_times_serial
+        fn(np.ascontiguousarray(X), W, out)
+        return out
+
+    def _source_forces(self, s: np.ndarray, coef: np.ndarray) -> list[np.ndarray]:
+        """Point forces (density times weight) at every source level, as three arrays;
+        upsampled levels are synthesised from the VSH coefficients ``coef``."""
+        f = [np.empty(self._n_src) for _ in range(3)]
+        for L, q in enumerate(self._levels):
+            J = self._lvl_spheres[L]
+            if J.size == 0:
+                continue
+            b0 = self._lvl_base[L]
+            if self._synth[L] is None:
+                nq = self._N
+                F = s[J].reshape(J.size, nq, 3) * self._src_scale[L][:, :, None]
+                for k in range(3):
+                    f[k][b0:b0 + J.size * nq] = F[:, :, k].reshape(-1)
+            else:
+                fn = (synthesize_forces if J.size * self._synth[L].size > _PARALLEL_WORK
+                      else synthesize_forces_serial)
+                fn(coef, J, self._synth[L], self._src_scale[L], b0, *f)
+        return f
+
+    def _apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
+        """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities, with the
+        quadrature between spheres accurate to ``tolerance_ladder[rung]``."""
         M, N, p = self.M, self._N, self.p
-        s = sigma.reshape(M, 3 * N)
-        out = s @ self._self_block
+        s = np.ascontiguousarray(sigma.reshape(M, 3 * N))
+        out = self._rows(s, self._self_block)
         if M > 1:
+            coef = self._rows(s, self._analysis_T)
             trac = np.zeros((M * N, 3))
             if self._fly_idx.size:
                 D = expansion_coefficients(p, s)
                 traction_expansion(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
                                    self._fly_ptr, self._fly_idx, self.centers, self.radii,
                                    D, p, trac)
-            if self.n_far_pairs:
-                f = np.ascontiguousarray(s.reshape(M, N, 3) * self._src_w)
-                direct_traction(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
-                                self._far_ptr, self._far_idx, self._src_pts, f, trac)
+            if self._n_src:
+                f = self._source_forces(s, coef)
+                ptr, start, stop = self._dir_ranges[min(rung, len(self._dir_ranges) - 1)]
+                if stop.size:
+                    work = N * int((stop - start).sum())
+                    fn = (direct_traction_ranges if work > _PARALLEL_WORK
+                          else direct_traction_ranges_serial)
+                    fn(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
+                                           ptr, start, stop, *self._src_xyz, *f, trac)
+                if self.far == "fmm":
+                    from .fmm import fmm_traction
+                    b0 = self._lvl_base[self._native]
+                    trac += fmm_traction(self._tgt_pts, self._tgt_nrm,
+                                         np.stack([x[b0:b0 + M * N] for x in f], axis=1),
+                                         self.quad_tol)
+                    ptr, start, stop = self._fmm_sub
+                    sub = np.zeros((M * N, 3))
+                    direct_traction_skip(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
+                                         ptr, start, stop, *self._src_xyz, *f, sub)
+                    trac -= sub
             out += trac.reshape(M, 3 * N)
             if self.n_block_pairs:
-                coef = s @ self._analysis_T
-                contrib = np.matmul(self._blocks, coef[self._block_src][:, :, None])[:, :, 0]
-                np.add.at(out, self._block_tgt, contrib)
+                fn = apply_blocks if self._blocks.size > _PARALLEL_WORK else apply_blocks_serial
+                fn(self._blocks, self._block_ptr, self._block_src, coef, out)
         return out.reshape(-1)
 
     def _precondition(self, y: np.ndarray) -> np.ndarray:
-        return (y.reshape(self.M, -1) @ self._precond_T).reshape(-1)
+        return self._rows(y.reshape(self.M, -1), self._precond_T).reshape(-1)
 
     def _unprecondition(self, sigma: np.ndarray) -> np.ndarray:
-        return (sigma.reshape(self.M, -1) @ self._self_block).reshape(-1)
+        return self._rows(sigma.reshape(self.M, -1), self._self_block).reshape(-1)
 
     def rhs(self, ft: np.ndarray) -> np.ndarray:
         """``B'(F, T)`` on every grid: stacked densities of length ``6 M p (p+1)``."""
@@ -273,25 +568,19 @@ class BimMobility(LinearOperator):
             self.residuals.append(0.0)
             return np.zeros_like(b)
         n = b.size
-        op = LinearOperator((n, n), matvec=lambda y: self._apply_bie(self._precondition(y)),
-                            dtype=np.float64)
         sigma0 = self._warm_start(b)
         y0 = self._unprecondition(sigma0)
-        count = [0]
-
-        def cb(_res):
-            count[0] += 1
-
         restart = max(1, min(n, 60, self.maxiter))
-        y, info = gmres(op, b, x0=y0, rtol=self.eps_gmres, atol=0.0, restart=restart,
-                        maxiter=max(1, -(-self.maxiter // restart)), callback=cb,
-                        callback_type="pr_norm")
+        y, its, res_g = gmres_solve(lambda v, k: self._apply_bie(self._precondition(v), k), b, y0,
+                                    self.eps_gmres, restart, self.maxiter,
+                                    rungs=len(self._dir_ranges), step=_RELAX_STEP)
         sigma = self._precondition(y)
         res = float(np.linalg.norm(b - self._apply_bie(sigma)) / nb)
-        self.gmres_iterations.append(count[0])
+        self.gmres_iterations.append(its)
         self.residuals.append(res)
+        info = 0 if res_g <= self.eps_gmres else 1
         if info != 0 or res > 10 * self.eps_gmres:
-            msg = (f"BIM GMRES did not converge: relative residual {res:.3g} after {count[0]} "
+            msg = (f"BIM GMRES did not converge: relative residual {res:.3g} after {its} "
                    f"iterations (eps_gmres = {self.eps_gmres:g}, M = {self.M}, p = {self.p}); "
                    "raise maxiter or eps_gmres, or check for near-contact spheres")
             if self.on_failure == "raise":
@@ -323,7 +612,8 @@ class BimMobility(LinearOperator):
 
 
 def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
-                 mu: float = 1.0) -> BimMobility:
+                 mu: float = 1.0, far: str = "direct",
+                 quad_tol: float | None = None) -> BimMobility:
     """Boundary-integral mobility operator of rigid spheres.
 
     Parameters
@@ -336,6 +626,10 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         GMRES relative tolerance.
     mu : float
         Viscosity.
+    far : {"direct", "fmm"}
+        Far-field engine (see :class:`BimMobility`); "fmm" needs fmm3dpy.
+    quad_tol : float, optional
+        Quadrature accuracy between spheres (default ``eps_gmres / 100``).
 
     Returns
     -------
@@ -344,4 +638,5 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         (F, T) per sphere to (U, Omega) per sphere; ``.gmres_iterations`` lists
         the iterations of every product.
     """
-    return BimMobility(centers, radii, p=p, eps_gmres=eps_gmres, mu=mu)
+    return BimMobility(centers, radii, p=p, eps_gmres=eps_gmres, mu=mu, far=far,
+                       quad_tol=quad_tol)

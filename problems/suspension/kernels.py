@@ -34,7 +34,10 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["solid_harmonics", "vsh_at", "unit_field", "traction_expansion",
-           "center_readout", "direct_traction"]
+           "center_readout", "direct_traction", "direct_traction_ranges",
+           "direct_traction_skip", "rows_times", "apply_blocks", "synthesize_forces",
+           "orthogonalize", "combine_rows", "rows_times_serial", "apply_blocks_serial",
+           "synthesize_forces_serial", "direct_traction_ranges_serial", "traction_response_batch"]
 
 _FOUR_PI = 4.0 * np.pi
 
@@ -372,6 +375,74 @@ def direct_traction(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.nda
         out[t, 2] += f2
 
 
+@njit(cache=True, fastmath=False)
+def _response_at(x: np.ndarray, nv: np.ndarray, p: int, fac: np.ndarray,
+                 out_t: np.ndarray) -> None:
+    """Traction (normal ``nv``) at the unit-frame point ``x`` of every unit VSH
+    coefficient: ``out_t[kind, n, m, :]`` (see :func:`traction_response`)."""
+    I = np.empty((p + 3, p + 3), dtype=np.complex128)
+    solid_harmonics(x[0], x[1], x[2], p + 2, I)
+    r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
+    xn = x[0] * nv[0] + x[1] * nv[1] + x[2] * nv[2]
+    g = np.empty(3, dtype=np.complex128)
+    H = np.empty((3, 3), dtype=np.complex128)
+    tf = np.empty((5, 3), dtype=np.complex128)
+    Gc = np.empty((3, 3), dtype=np.complex128)
+    for n in range(p + 1):
+        for m in range(n + 1):
+            ip = _get(I, n + 1, m + 1)
+            im = _get(I, n + 1, m - 1)
+            g[0] = 0.5 * (ip - im)
+            g[1] = -0.5j * (ip + im)
+            g[2] = -I[n + 1, m]
+            a2 = _get(I, n + 2, m + 2)
+            a1 = _get(I, n + 2, m + 1)
+            a0 = I[n + 2, m]
+            b1 = _get(I, n + 2, m - 1)
+            b2 = _get(I, n + 2, m - 2)
+            H[0, 0] = 0.25 * (a2 - 2.0 * a0 + b2)
+            H[1, 1] = -0.25 * (a2 + 2.0 * a0 + b2)
+            H[2, 2] = a0
+            H[0, 1] = -0.25j * (a2 - b2)
+            H[1, 0] = H[0, 1]
+            H[0, 2] = 0.5 * (b1 - a1)
+            H[2, 0] = H[0, 2]
+            H[1, 2] = 0.5j * (a1 + b1)
+            H[2, 1] = H[1, 2]
+            v = I[n, m]
+            gn = g[0] * nv[0] + g[1] * nv[1] + g[2] * nv[2]
+            for i in range(3):
+                Hn_i = H[i, 0] * nv[0] + H[i, 1] * nv[1] + H[i, 2] * nv[2]
+                # Phi: G = H
+                tf[0, i] = 2.0 * Hn_i
+                # P_alpha: G_ij = 2 x_j g_i + r^2 H_ij
+                tf[2, i] = 2.0 * g[i] * xn + 2.0 * x[i] * gn + 2.0 * r2 * Hn_i
+                # P_beta: G_ij = delta_ij v + x_i g_j
+                tf[3, i] = 2.0 * v * nv[i] + x[i] * gn + g[i] * xn
+                # P: pressure v
+                tf[4, i] = -v * nv[i]
+            # chi: G_ij = eps_ijl g_l + (x cross H_{:, j})_i ; traction (G + G^T) n
+            for i in range(3):
+                i1 = (i + 1) % 3
+                i2 = (i + 2) % 3
+                for j in range(3):
+                    val = x[i1] * H[i2, j] - x[i2] * H[i1, j]
+                    if j == i1:
+                        val += g[i2]
+                    elif j == i2:
+                        val -= g[i1]
+                    Gc[i, j] = val
+            for i in range(3):
+                tf[1, i] = ((Gc[i, 0] + Gc[0, i]) * nv[0] + (Gc[i, 1] + Gc[1, i]) * nv[1]
+                            + (Gc[i, 2] + Gc[2, i]) * nv[2])
+            for k in range(3):
+                for i in range(3):
+                    acc = 0j
+                    for f in range(5):
+                        acc += fac[f, k, n, m] * tf[f, i]
+                    out_t[k, n, m, i] = acc
+
+
 @njit(parallel=True, fastmath=False, cache=True)
 def traction_response(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, center: np.ndarray,
                       radius: float, p: int, fac: np.ndarray, out: np.ndarray) -> None:
@@ -385,68 +456,217 @@ def traction_response(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, center: np.ndarr
     """
     T = tgt_pts.shape[0]
     for t in prange(T):
-        I = np.empty((p + 3, p + 3), dtype=np.complex128)
         x = np.empty(3)
         for c in range(3):
             x[c] = (tgt_pts[t, c] - center[c]) / radius
-        nv = tgt_nrm[t]
-        solid_harmonics(x[0], x[1], x[2], p + 2, I)
-        r2 = x[0] * x[0] + x[1] * x[1] + x[2] * x[2]
-        xn = x[0] * nv[0] + x[1] * nv[1] + x[2] * nv[2]
-        g = np.empty(3, dtype=np.complex128)
-        H = np.empty((3, 3), dtype=np.complex128)
-        tf = np.empty((5, 3), dtype=np.complex128)
-        Gc = np.empty((3, 3), dtype=np.complex128)
-        for n in range(p + 1):
-            for m in range(n + 1):
-                ip = _get(I, n + 1, m + 1)
-                im = _get(I, n + 1, m - 1)
-                g[0] = 0.5 * (ip - im)
-                g[1] = -0.5j * (ip + im)
-                g[2] = -I[n + 1, m]
-                a2 = _get(I, n + 2, m + 2)
-                a1 = _get(I, n + 2, m + 1)
-                a0 = I[n + 2, m]
-                b1 = _get(I, n + 2, m - 1)
-                b2 = _get(I, n + 2, m - 2)
-                H[0, 0] = 0.25 * (a2 - 2.0 * a0 + b2)
-                H[1, 1] = -0.25 * (a2 + 2.0 * a0 + b2)
-                H[2, 2] = a0
-                H[0, 1] = -0.25j * (a2 - b2)
-                H[1, 0] = H[0, 1]
-                H[0, 2] = 0.5 * (b1 - a1)
-                H[2, 0] = H[0, 2]
-                H[1, 2] = 0.5j * (a1 + b1)
-                H[2, 1] = H[1, 2]
-                v = I[n, m]
-                gn = g[0] * nv[0] + g[1] * nv[1] + g[2] * nv[2]
-                for i in range(3):
-                    Hn_i = H[i, 0] * nv[0] + H[i, 1] * nv[1] + H[i, 2] * nv[2]
-                    # Phi: G = H
-                    tf[0, i] = 2.0 * Hn_i
-                    # P_alpha: G_ij = 2 x_j g_i + r^2 H_ij
-                    tf[2, i] = 2.0 * g[i] * xn + 2.0 * x[i] * gn + 2.0 * r2 * Hn_i
-                    # P_beta: G_ij = delta_ij v + x_i g_j
-                    tf[3, i] = 2.0 * v * nv[i] + x[i] * gn + g[i] * xn
-                    # P: pressure v
-                    tf[4, i] = -v * nv[i]
-                # chi: G_ij = eps_ijl g_l + (x cross H_{:, j})_i ; traction (G + G^T) n
-                for i in range(3):
-                    i1 = (i + 1) % 3
-                    i2 = (i + 2) % 3
-                    for j in range(3):
-                        val = x[i1] * H[i2, j] - x[i2] * H[i1, j]
-                        if j == i1:
-                            val += g[i2]
-                        elif j == i2:
-                            val -= g[i1]
-                        Gc[i, j] = val
-                for i in range(3):
-                    tf[1, i] = ((Gc[i, 0] + Gc[0, i]) * nv[0] + (Gc[i, 1] + Gc[1, i]) * nv[1]
-                                + (Gc[i, 2] + Gc[2, i]) * nv[2])
-                for k in range(3):
-                    for i in range(3):
-                        acc = 0j
-                        for f in range(5):
-                            acc += fac[f, k, n, m] * tf[f, i]
-                        out[t, k, n, m, i] = acc
+        _response_at(x, tgt_nrm[t], p, fac, out[t])
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def traction_response_batch(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, centers: np.ndarray,
+                            radii: np.ndarray, p: int, fac: np.ndarray, out: np.ndarray) -> None:
+    """As :func:`traction_response` with one source sphere (``centers[t]``, ``radii[t]``)
+    per target, so that many near-field blocks are built in one parallel call."""
+    T = tgt_pts.shape[0]
+    for t in prange(T):
+        x = np.empty(3)
+        for c in range(3):
+            x[c] = (tgt_pts[t, c] - centers[t, c]) / radii[t]
+        _response_at(x, tgt_nrm[t], p, fac, out[t])
+
+
+def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
+                           pair_ptr: np.ndarray, src_start: np.ndarray, src_stop: np.ndarray,
+                           src_x: np.ndarray, src_y: np.ndarray, src_z: np.ndarray,
+                           src_fx: np.ndarray, src_fy: np.ndarray, src_fz: np.ndarray,
+                           out: np.ndarray) -> None:
+    """Add to ``out[t]`` the traction of point forces by direct summation (vectorised).
+
+    Target ``t`` on sphere ``i = tgt_sphere[t]`` receives the point forces
+    ``src_f*[s]`` at ``src_*[s]`` for ``s`` in ``range(src_start[k], src_stop[k])``,
+    ``k`` in ``range(pair_ptr[i], pair_ptr[i+1])``: one contiguous source range per
+    interacting sphere (its quadrature nodes at the grid order chosen for the
+    pair, density times weight already folded in).  Sources are stored as
+    separate coordinate arrays so that the inner loop is a SIMD reduction.
+    Sources must not coincide with targets (use :func:`direct_traction_skip`).
+    """
+    T = tgt_pts.shape[0]
+    c0 = -3.0 / _FOUR_PI
+    for t in prange(T):
+        i = tgt_sphere[t]
+        x0 = tgt_pts[t, 0]
+        x1 = tgt_pts[t, 1]
+        x2 = tgt_pts[t, 2]
+        n0 = tgt_nrm[t, 0]
+        n1 = tgt_nrm[t, 1]
+        n2 = tgt_nrm[t, 2]
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for k in range(pair_ptr[i], pair_ptr[i + 1]):
+            for s in range(src_start[k], src_stop[k]):
+                r0 = x0 - src_x[s]
+                r1 = x1 - src_y[s]
+                r2 = x2 - src_z[s]
+                rr = r0 * r0 + r1 * r1 + r2 * r2
+                inv = 1.0 / np.sqrt(rr)
+                inv2 = inv * inv
+                rf = r0 * src_fx[s] + r1 * src_fy[s] + r2 * src_fz[s]
+                rn = r0 * n0 + r1 * n1 + r2 * n2
+                w = c0 * rf * rn * inv2 * inv2 * inv
+                f0 += w * r0
+                f1 += w * r1
+                f2 += w * r2
+        out[t, 0] += f0
+        out[t, 1] += f1
+        out[t, 2] += f2
+
+
+@njit(parallel=True, fastmath=False, cache=True)
+def direct_traction_skip(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
+                         pair_ptr: np.ndarray, src_start: np.ndarray, src_stop: np.ndarray,
+                         src_x: np.ndarray, src_y: np.ndarray, src_z: np.ndarray,
+                         src_fx: np.ndarray, src_fy: np.ndarray, src_fz: np.ndarray,
+                         out: np.ndarray) -> None:
+    """As :func:`direct_traction_ranges` but skipping sources that coincide with the
+    target (the convention of point-source FMMs, whose near part it removes)."""
+    T = tgt_pts.shape[0]
+    c0 = -3.0 / _FOUR_PI
+    for t in prange(T):
+        i = tgt_sphere[t]
+        x0 = tgt_pts[t, 0]
+        x1 = tgt_pts[t, 1]
+        x2 = tgt_pts[t, 2]
+        n0 = tgt_nrm[t, 0]
+        n1 = tgt_nrm[t, 1]
+        n2 = tgt_nrm[t, 2]
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for k in range(pair_ptr[i], pair_ptr[i + 1]):
+            for s in range(src_start[k], src_stop[k]):
+                r0 = x0 - src_x[s]
+                r1 = x1 - src_y[s]
+                r2 = x2 - src_z[s]
+                rr = r0 * r0 + r1 * r1 + r2 * r2
+                if rr == 0.0:
+                    continue
+                inv = 1.0 / np.sqrt(rr)
+                inv2 = inv * inv
+                rf = r0 * src_fx[s] + r1 * src_fy[s] + r2 * src_fz[s]
+                rn = r0 * n0 + r1 * n1 + r2 * n2
+                w = c0 * rf * rn * inv2 * inv2 * inv
+                f0 += w * r0
+                f1 += w * r1
+                f2 += w * r2
+        out[t, 0] += f0
+        out[t, 1] += f1
+        out[t, 2] += f2
+
+
+# ---- small dense products of the BIM operator, kept out of BLAS --------------------------
+# The BIM product alternates numba-parallel sums with small dense products; on few cores
+# BLAS threads and numba threads then spin against each other (measured: a 27 x 432 x 432
+# product 100x slower right after a parallel numba call).  These loops avoid that.
+
+def _rows_times_impl(X: np.ndarray, W: np.ndarray, out: np.ndarray) -> None:
+    """``out[r] += X[r] @ W`` for every row r (parallel over rows)."""
+    R, n = X.shape
+    m = W.shape[1]
+    for r in prange(R):
+        acc = np.zeros(m)
+        for k in range(n):
+            x = X[r, k]
+            if x != 0.0:
+                for j in range(m):
+                    acc[j] += x * W[k, j]
+        for j in range(m):
+            out[r, j] += acc[j]
+
+
+def _apply_blocks_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray, coef: np.ndarray,
+                 out: np.ndarray) -> None:
+    """``out[i] += sum_k E[k] @ coef[src[k]]`` over the blocks ``k`` in
+    ``range(tgt_ptr[i], tgt_ptr[i+1])`` (blocks sorted by target sphere i)."""
+    M = tgt_ptr.size - 1
+    rows = E.shape[1]
+    nv = E.shape[2]
+    for i in prange(M):
+        acc = np.zeros(rows)
+        for k in range(tgt_ptr[i], tgt_ptr[i + 1]):
+            c = coef[src[k]]
+            for a in range(rows):
+                s = 0.0
+                for b in range(nv):
+                    s += E[k, a, b] * c[b]
+                acc[a] += s
+        for a in range(rows):
+            out[i, a] += acc[a]
+
+
+def _synthesize_forces_impl(coef: np.ndarray, spheres: np.ndarray, BT: np.ndarray,
+                      scale: np.ndarray, base: int, fx: np.ndarray, fy: np.ndarray,
+                      fz: np.ndarray) -> None:
+    """Point forces on a source grid from VSH coefficients: for the k-th sphere
+    ``j = spheres[k]``, ``f = (coef[j] @ BT) * scale[k]`` (node-major xyz, ``nq`` nodes)
+    written to ``f*[base + k nq + node]``."""
+    K = spheres.size
+    nv, m = BT.shape
+    nq = m // 3
+    for k in prange(K):
+        j = spheres[k]
+        acc = np.zeros(m)
+        for b in range(nv):
+            c = coef[j, b]
+            for a in range(m):
+                acc[a] += c * BT[b, a]
+        o = base + k * nq
+        for node in range(nq):
+            w = scale[k, node]
+            fx[o + node] = acc[3 * node] * w
+            fy[o + node] = acc[3 * node + 1] * w
+            fz[o + node] = acc[3 * node + 2] * w
+
+
+@njit(cache=True, fastmath=False)
+def orthogonalize(V: np.ndarray, k: int, w: np.ndarray, h: np.ndarray) -> float:
+    """Classical Gram-Schmidt, applied twice, of ``w`` against the rows ``V[:k]``
+    (in place); ``h[:k]`` receives the projections and the norm of the result is
+    returned.  Serial on purpose: GMRES vector work stays off BLAS threads."""
+    n = w.size
+    for j in range(k):
+        h[j] = 0.0
+    for _ in range(2):
+        for j in range(k):
+            c = 0.0
+            for t in range(n):
+                c += V[j, t] * w[t]
+            h[j] += c
+            for t in range(n):
+                w[t] -= c * V[j, t]
+    s = 0.0
+    for t in range(n):
+        s += w[t] * w[t]
+    return np.sqrt(s)
+
+
+@njit(cache=True, fastmath=False)
+def combine_rows(V: np.ndarray, y: np.ndarray, x: np.ndarray) -> None:
+    """``x += y @ V[:y.size]`` (serial)."""
+    n = x.size
+    for j in range(y.size):
+        c = y[j]
+        for t in range(n):
+            x[t] += c * V[j, t]
+
+
+# Parallel and serial builds of the same loops: a parallel launch costs milliseconds on a
+# loaded machine, so small products (few spheres, low p) run serially.
+rows_times = njit(parallel=True, fastmath=True, cache=True)(_rows_times_impl)
+rows_times_serial = njit(fastmath=True, cache=True)(_rows_times_impl)
+apply_blocks = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_impl)
+apply_blocks_serial = njit(fastmath=True, cache=True)(_apply_blocks_impl)
+synthesize_forces = njit(parallel=True, fastmath=True, cache=True)(_synthesize_forces_impl)
+synthesize_forces_serial = njit(fastmath=True, cache=True)(_synthesize_forces_impl)
+direct_traction_ranges = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_ranges_impl)
+direct_traction_ranges_serial = njit(fastmath=True, cache=True)(_direct_traction_ranges_impl)

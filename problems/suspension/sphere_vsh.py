@@ -41,7 +41,9 @@ from .kernels import vsh_at
 
 __all__ = ["SphereGrid", "VSHBasis", "SelfOperators", "sphere_grid", "vsh_basis",
            "self_operators", "s_eigenvalue", "traction_eigenvalue", "knm_table",
-           "rigid_density", "net_force_torque", "expansion_coefficients"]
+           "rigid_density", "net_force_torque", "expansion_coefficients", "default_quad_tol",
+           "grid_levels", "sampled_basis", "upsampling_matrix", "quadrature_errors", "quadrature_radius",
+           "RHO_GRID"]
 
 TYPES = ("V", "W", "X")
 
@@ -339,6 +341,17 @@ def _expansion_factors(p: int) -> np.ndarray:
     return f
 
 
+@lru_cache(maxsize=None)
+def _coefficient_matrix(p: int) -> np.ndarray:
+    """Complex ``(5 (p+1)^2, 3N)`` matrix: grid density -> folded expansion coefficients."""
+    b = vsh_basis(p)
+    Q = (b.to_complex @ b.A).reshape(3, p + 1, p + 1, -1)
+    F = np.einsum("fknm,knmx->fnmx", _expansion_factors(p), Q).reshape(5 * (p + 1) ** 2, -1)
+    F = np.ascontiguousarray(F.T)
+    F.setflags(write=False)
+    return F
+
+
 def expansion_coefficients(p: int, sigma: np.ndarray) -> np.ndarray:
     """Folded exterior-expansion coefficients of unit-sphere grid densities.
 
@@ -356,7 +369,127 @@ def expansion_coefficients(p: int, sigma: np.ndarray) -> np.ndarray:
         :func:`kernels.unit_field` (for the single layer with mu = 1 on the unit
         sphere; the density's own units carry through).
     """
-    b = vsh_basis(p)
     sigma = np.asarray(sigma, dtype=float)
-    Cc = (sigma @ (b.to_complex @ b.A).T).reshape(-1, 3, p + 1, p + 1)
-    return np.einsum("fknm,jknm->jfnm", _expansion_factors(p), Cc)
+    return (sigma @ _coefficient_matrix(p)).reshape(-1, 5, p + 1, p + 1)
+
+
+# ---- accuracy of direct quadrature between spheres -----------------------------------------
+
+def default_quad_tol(eps_gmres: float) -> float:
+    """Default accuracy of the quadrature between spheres: ``eps_gmres / 100``.
+
+    The quadrature error is then far below the GMRES tolerance and, for every
+    p <= 16 and gap >= 0.1a, below the order-p discretisation error of the
+    density (DESIGN.md), so the pair split does not show in the result.
+    Clamped to [1e-15, 1e-4].
+    """
+    return float(min(max(eps_gmres / 100.0, 1e-15), 1e-4))
+
+
+def grid_levels(p: int) -> tuple[int, ...]:
+    """Source-grid orders tried for direct quadrature between spheres, coarsest first:
+    ``ceil(p/2), ceil(3p/4)`` if at least 3 (truncated densities, enough for distant
+    spheres at loose tolerances), the
+    native ``p`` and the upsampled ``p+2, ..., 2p``."""
+    p = _check_p(p)
+    coarse = {q for q in (-(-p // 2), -(-3 * p // 4)) if 3 <= q < p}
+    return tuple(sorted(coarse | set(range(p, 2 * p + 1, 2)) | {2 * p}))
+
+
+@lru_cache(maxsize=None)
+def sampled_basis(p: int, q: int) -> np.ndarray:
+    """``(3 N_q, nv)``: the real VSH basis of degree <= p (columns of ``vsh_basis(p).B``)
+    sampled on the grid of order q.  For ``q < p`` the columns of degree > q are zero
+    (the density is truncated to degree q before sampling, so that the coarse grid
+    does not alias it)."""
+    p, q = _check_p(p), _check_p(q)
+    Bq, _ = _sample_basis(p, q)
+    if q < p:
+        Bq[:, vsh_basis(p).degree > q] = 0.0
+    Bq.setflags(write=False)
+    return Bq
+
+
+@lru_cache(maxsize=None)
+def upsampling_matrix(p: int, q: int) -> np.ndarray:
+    """``(3 N_q, 3 N_p)`` matrix sampling the band-limited (degree <= p) interpolant of an
+    order-p grid density on the grid of order q (spherical-harmonic synthesis; for
+    ``q < p`` truncated to degree q first)."""
+    U = sampled_basis(p, q) @ vsh_basis(p).A
+    U.setflags(write=False)
+    return U
+
+
+RHO_GRID = 1.02 * 1.04 ** np.arange(153)
+"""Distances (source radii, from the source centre) at which quadrature errors are measured."""
+
+
+def quadrature_samples(p: int, seed: int, n_densities: int = 4) -> tuple[np.ndarray, ...]:
+    """Random band-limited unit-sphere densities ``(K, 3N)`` with max |sigma| = 1, target
+    directions (the 144 nodes of the order-8 grid, rotated by a random rotation so that
+    they do not line up with the source grid) and random unit normals."""
+    rng = np.random.default_rng(seed)
+    b = vsh_basis(p)
+    sig = (b.B @ rng.standard_normal((b.B.shape[1], n_densities))).T
+    sig /= np.abs(sig).max(axis=1, keepdims=True)
+    Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    pts = sphere_grid(8).nodes @ Q.T
+    nrm = rng.standard_normal(pts.shape)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.ascontiguousarray(sig), np.ascontiguousarray(pts), np.ascontiguousarray(nrm)
+
+
+def quadrature_errors(p: int, q: int, rho: np.ndarray, seed: int = 1) -> np.ndarray:
+    """Measured max traction error (per unit max |sigma|) of direct quadrature on the grid of
+    order q of degree-p densities on the unit sphere, at distances ``rho`` from the centre,
+    against the exact exterior expansion (:func:`kernels.traction_expansion`)."""
+    from .kernels import direct_traction_ranges, traction_expansion
+    p, q = _check_p(p), _check_p(q)
+    rho = np.atleast_1d(np.asarray(rho, dtype=float))
+    sig, dirs, nrm0 = quadrature_samples(p, seed)
+    K, T0 = sig.shape[0], dirs.shape[0]
+    # targets: every (rho, density, direction); "sphere" index = density index
+    tgt = np.ascontiguousarray((rho[:, None, None, None] * dirs[None, None]).repeat(K, axis=1)
+                               .reshape(-1, 3))
+    nrm = np.ascontiguousarray(np.broadcast_to(nrm0, (rho.size, K, T0, 3)).reshape(-1, 3))
+    which = np.ascontiguousarray(np.broadcast_to(np.arange(K)[None, :, None],
+                                                 (rho.size, K, T0)).reshape(-1))
+    ptr = np.arange(K + 1, dtype=np.int64)
+    ex = np.zeros((tgt.shape[0], 3))
+    traction_expansion(tgt, nrm, which, ptr, np.arange(K, dtype=np.int64), np.zeros((K, 3)),
+                       np.ones(K), expansion_coefficients(p, sig), p, ex)
+    gq = sphere_grid(q)
+    Nq = gq.size
+    fq = (sig @ upsampling_matrix(p, q).T).reshape(K, Nq, 3) * gq.weights[None, :, None]
+    nodes = np.tile(gq.nodes, (K, 1))
+    start = np.arange(K, dtype=np.int64) * Nq
+    dr = np.zeros_like(ex)
+    direct_traction_ranges(tgt, nrm, which, ptr, start, start + Nq,
+                           *(np.ascontiguousarray(nodes[:, c]) for c in range(3)),
+                           *(np.ascontiguousarray(fq.reshape(-1, 3)[:, c]) for c in range(3)), dr)
+    return np.abs(dr - ex).reshape(rho.size, -1).max(axis=1)
+
+
+@lru_cache(maxsize=None)
+def _error_table(p: int, q: int) -> np.ndarray:
+    return quadrature_errors(p, q, RHO_GRID, seed=0)
+
+
+def quadrature_radius(p: int, q: int, tol: float) -> float:
+    """Distance (in source radii, from the source centre) beyond which direct quadrature on
+    the grid of order q of a degree-p density is accurate to ``tol`` (per unit max |sigma|).
+
+    Measured, not modelled: the traction of four random band-limited densities in 144
+    directions is compared with the exact exterior expansion at the distances
+    :data:`RHO_GRID` (1.02 to ~400 radii, 4 % apart; once per ``(p, q)``, cached); the
+    radius is the grid distance just above the farthest one where the error exceeds
+    ``tol / 4`` (a factor 4 margin for densities other than the samples).  ``inf`` when that happens at the last grid distance.
+    """
+    p, q = _check_p(p), _check_p(q)
+    if not (np.isfinite(tol) and tol > 0):
+        raise ValueError(f"quadrature tolerance {tol!r} must be a positive number, e.g. 1e-10")
+    bad = np.nonzero(_error_table(p, q) > 0.25 * tol)[0]
+    if bad.size == 0:
+        return float(RHO_GRID[0])
+    k = int(bad[-1]) + 1
+    return float(RHO_GRID[k]) if k < RHO_GRID.size else float("inf")
