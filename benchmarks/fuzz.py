@@ -72,9 +72,9 @@ def mvp_solvers() -> list[str]:
                   and not n.startswith("test-"))
 
 
-def run_case(args: tuple[int, int, float]) -> list[tuple[str, str, str, str]]:
-    """``(kind, solver, outcome, detail)`` for every solver on case ``i``."""
-    i, seed, max_emvps = args
+def run_case(args: tuple) -> list[tuple[str, str, str, str]]:
+    """``(kind, solver, outcome, detail)`` for every solver (or the named ones) on case ``i``."""
+    i, seed, max_emvps, only = args
     out = []
     try:
         lcp = make_case(i, seed)
@@ -82,6 +82,8 @@ def run_case(args: tuple[int, int, float]) -> list[tuple[str, str, str, str]]:
         return [("?", "(generator)", "crash", traceback.format_exc(limit=3))]
     kind = lcp.meta["kind"]
     for name in mvp_solvers():
+        if only and name not in only:
+            continue
         spec = MULTI.get(name, name)
         try:
             res = lcpbench.solve(lcp, solver=spec, tol=1e-8, max_emvps=max_emvps)
@@ -104,6 +106,8 @@ def main() -> int:
     ap.add_argument("--start", type=int, default=0,
                     help="first case index (to split a sweep into slices)")
     ap.add_argument("--save", metavar="FILE.json", help="also write the counts to this file")
+    ap.add_argument("--solvers", nargs="+", metavar="NAME",
+                    help="only these solvers (default every MVP-only solver)")
     ap.add_argument("--merge", nargs="+", metavar="FILE.json",
                     help="print the table of saved slices instead of running")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes")
@@ -119,7 +123,12 @@ def main() -> int:
 
     counts: Counter = Counter()
     problems: list[str] = []
-    work = [(i, args.seed, args.max_emvps) for i in range(args.start, args.start + args.cases)]
+    only = tuple(args.solvers or ())
+    unknown = set(only) - set(mvp_solvers())
+    if unknown:
+        ap.error(f"--solvers: {sorted(unknown)} are not MVP-only solvers: {mvp_solvers()}")
+    work = [(i, args.seed, args.max_emvps, only)
+            for i in range(args.start, args.start + args.cases)]
     with Pool(args.jobs) as pool:
         for rows in tqdm(pool.imap_unordered(run_case, work, chunksize=4), total=len(work),
                          unit="case", file=sys.stderr):
@@ -128,7 +137,8 @@ def main() -> int:
                 if outcome in ("false", "crash"):
                     problems.append(f"{name} on {kind} {detail}")
     head = (f"cases {args.start}..{args.start + args.cases - 1} (seed {args.seed}), tol 1e-8, "
-            f"paper's stop rule, budget {args.max_emvps:g} E-MVPs per solve")
+            f"paper's stop rule, budget {args.max_emvps:g} E-MVPs per solve"
+            + (f", solvers {', '.join(only)}" if only else ""))
     if args.save:
         with open(args.save, "w") as fh:
             json.dump({"head": head, "cases": args.cases, "problems": problems,

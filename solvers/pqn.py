@@ -28,6 +28,7 @@ from typing import Optional
 import numpy as np
 
 from lcpbench import register_solver
+from lcpbench.confirm import ConfirmedReport
 from lcpbench.context import SolverContext
 from lcpbench.result import SolveResult, Status
 
@@ -182,69 +183,6 @@ def _finish(ctx: SolverContext, out, counters: Counters, state: dict) -> SolveRe
     return ctx.finish(out.z, out.G, state=state)
 
 
-class _ConfirmedStop:
-    """``ctx.report`` that confirms a recurrence-updated gradient before it claims convergence.
-
-    The levels update ``G = A x + b`` by the recurrence ``G + eta A p``
-    (algorithm stepSize: one MVP per iteration), so ``G`` drifts from the exact
-    gradient by rounding, by at most about ``eps sqrt(n) (||G_old|| + ||G_new||)``
-    per step (the update and the product ``A p``); the bound is accumulated
-    here (with a factor 8) since the last exact product. When
-    ``||min(x, G)||`` meets the stop threshold but the accumulated drift could
-    account for the difference (``claim + drift > threshold``), ``G`` is
-    recomputed exactly, in place, with one counted MVP
-    (``info['confirmations']``) before the iterate is reported. With a
-    well-scaled ``b`` the drift is far below the tolerance and nothing is
-    spent; with ``|b|`` near 1e6 and the paper's absolute 1e-8 it is not, and
-    without this the solver could claim a residual the framework's
-    verification does not reproduce (found by ``benchmarks/fuzz.py``). After
-    three confirmations that the exact residual refutes, the solve ends
-    ``stagnated``: the tolerance is then below the attainable precision.
-    lcpbench's addition; not in the paper.
-    """
-
-    def __init__(self, ctx: SolverContext):
-        self.ctx = ctx
-        self.drift = 0.0
-        self.prev_norm: Optional[float] = None
-        self.scale = 8.0 * np.finfo(float).eps * np.sqrt(max(ctx.n, 1))
-        self.refuted = 0
-        self.max_refuted = 3
-        ctx.info["confirmations"] = 0
-
-    def exact(self, z: np.ndarray) -> np.ndarray:
-        """``A z + b`` by a counted product; resets the drift bound."""
-        self.drift, self.prev_norm = 0.0, None
-        return self.ctx.A @ z + self.ctx.b
-
-    def __call__(self, z: np.ndarray, G: np.ndarray) -> bool:
-        norm = float(np.linalg.norm(G))
-        if self.prev_norm is not None:
-            self.drift += self.scale * (self.prev_norm + norm)
-        self.prev_norm = norm
-        thr = self.ctx.threshold
-        claim = float(np.linalg.norm(np.minimum(z, G)))
-        confirmed = False
-        if self.drift > 0.0 and claim <= thr < claim + self.drift and np.all(np.isfinite(G)):
-            G[...] = self.exact(z)
-            self.prev_norm = float(np.linalg.norm(G))
-            self.ctx.info["confirmations"] += 1
-            confirmed = True
-        if self.ctx.report(z, G):
-            return True
-        if confirmed:
-            self.refuted += 1
-            if self.refuted >= self.max_refuted:
-                exact = float(np.linalg.norm(np.minimum(z, G)))
-                self.ctx.status = Status.stagnated
-                self.ctx.message = (
-                    f"the gradient recurrence met the threshold {thr:.3g} {self.refuted} times "
-                    f"but the exact residual did not (last {exact:.3g}): the tolerance is below "
-                    "the precision attainable for this b; loosen tol or use stop='kkt'")
-                return True
-        return False
-
-
 def _start(ctx: SolverContext):
     x = np.maximum(ctx.x0, 0.0)
     return x, ctx.A @ x + ctx.b
@@ -271,7 +209,7 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     """
     x, g = _start(ctx)
     counters = Counters()
-    stop = _ConfirmedStop(ctx)
+    stop = ConfirmedReport(ctx)
     out = mono_level(ctx.A.matvec, x, g, stop, sys.maxsize, p.options(), counters,
                      seed=_seed(ctx), exact_gradient=stop.exact)
     ctx.info["rank"] = len(out.pairs)
@@ -303,7 +241,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
     # previous step's pairs: their low products are redone on this step's A_low
     level_state = {"pairs": Pairs(list(st["pairs"].S), list(st["pairs"].Y),
                                   [None] * len(st["pairs"]))} if st else None
-    stop = _ConfirmedStop(ctx)
+    stop = ConfirmedReport(ctx)
     out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p.options(),
                           counters, state=level_state, warm_start=True,
                           exact_gradient=stop.exact)
