@@ -1,7 +1,7 @@
-"""Random SPD problem families: the default benchmark set and bi-fidelity pairs.
+"""Random SPD problem families: a synthetic stand-in for the suspension LCPs, and bi-fidelity pairs.
 
-``random-spd`` is the shipped default set until stored sets of suspension LCPs
-land: SPD matrices with condition numbers 10..100 and n = 150..300, the sizes
+``random-spd`` was the default set of ``lcpbench run`` until the stored sets of
+suspension LCPs landed (now ``set-lattice-bim-m3``): SPD matrices with condition numbers 10..100 and n = 150..300, the sizes
 and the benign conditioning of the collision LCPs of the method paper (section
 "Numerical Results": kappa = O(10), N_c of the order of the particle count).
 ``bifidelity`` pairs a high-fidelity matrix with a perturbed low-fidelity one,
@@ -60,9 +60,9 @@ class RandomSpdParams:
             raise ValueError("need 1 <= cond_min <= cond_max < inf")
 
 
-@register_problem("random-spd", RandomSpdParams, default=True)
+@register_problem("random-spd", RandomSpdParams)
 def random_spd(p: RandomSpdParams) -> list[LCP]:
-    """Random SPD LCPs, n 150..300 and condition number 10..100 (the default set).
+    """Random SPD LCPs, n 150..300 and condition number 10..100 (synthetic stand-in).
 
     ``A = Q diag(lam) Q'`` with Haar-random ``Q`` and eigenvalues from 1 to
     ``cond`` (:func:`lcpbench.problems.hard.random_spd_matrix`), scaled so that
@@ -169,7 +169,7 @@ def with_perturbed_lows(lcp: LCP, seed: int, levels=PERTURBED_LOWS) -> LCP:
                psd_check=False)
 
 
-@register_problem("bifidelity", BifidelityParams, default=True)
+@register_problem("bifidelity", BifidelityParams)
 def bifidelity(p: BifidelityParams) -> list[LCP]:
     """SPD LCPs with a low-fidelity operator ``A_low = A + E`` named ``"low"``.
 

@@ -56,7 +56,8 @@ from lcpbench.operator import dense_uncounted
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "shipped_sets", "parse_instances", "FORMAT", "VERSION",
-           "COST_CONVENTION", "DATA_DIR", "ShippedSetParams", "register_shipped_sets", "set_problem_name"]
+           "COST_CONVENTION", "DATA_DIR", "ShippedSetParams", "register_shipped_sets", "set_problem_name",
+           "DEFAULT_SETS"]
 
 #: Value of the root attribute ``format``.
 FORMAT = "lcpbench.set"
@@ -684,11 +685,16 @@ def set_problem_name(stem: str) -> str:
     return "set-" + re.sub(r"[^a-z0-9]+", "-", stem.lower()).strip("-")
 
 
+#: Shipped sets in the default sweep of ``lcpbench run`` (with the hard-case families).
+DEFAULT_SETS = ("lattice-bim-m3",)
+
+
 def register_shipped_sets() -> list[str]:
     """Register problem ``set-<stem>`` for every shipped set; returns the names.
 
     Each reads its file with the ``stored`` plugin (verified on reading). Names
-    already registered by the same function are left as they are.
+    already registered by the same function are left as they are. The sets in
+    :data:`DEFAULT_SETS` join the default sweep of ``lcpbench run``.
     """
     names = []
     for stem, path in shipped_sets().items():
@@ -700,7 +706,7 @@ def register_shipped_sets() -> list[str]:
         load.__doc__ = f"Shipped stored set {stem} ({path.name}), verified on reading."
         load.__qualname__ = f"shipped_set_{pname}"
         try:
-            register_problem(pname, ShippedSetParams)(load)
+            register_problem(pname, ShippedSetParams, default=stem in DEFAULT_SETS)(load)
         except ValueError:
             continue                     # a plugin of that name exists: keep it
         names.append(pname)

@@ -157,8 +157,9 @@ def test_bb_cycle_meta():
         assert np.linalg.cond(lcp.dense()) == pytest.approx(lcp.meta["cond"], rel=1e-3)
 
 
-def test_random_spd_is_default_with_mixed_solution():
-    assert get_problem("random-spd").default
+def test_random_spd_is_a_stand_in_with_mixed_solution():
+    assert not get_problem("random-spd").default     # the shipped BIM set is the default now
+    assert get_problem("set-lattice-bim-m3").default
     info = get_problem("random-spd")
     default = info.params()
     assert (default.n_min, default.n_max, default.cond_min, default.cond_max) == \
