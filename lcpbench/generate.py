@@ -48,6 +48,7 @@ from . import __version__
 from .context import Budget
 from .lcp import LCP
 from .operator import Operator, dense_uncounted
+from .ranges import parse_ranges
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
            "add_generate_parser", "cmd_generate", "GenerateSummary"]
@@ -71,20 +72,9 @@ def parse_steps(spec: Union[str, int, Iterable[int]]) -> list[int]:
     if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
         items = [int(spec)]
     elif isinstance(spec, str):
-        items = []
         if not spec.strip():
             raise ValueError("--steps is empty; give step indices like 31-50 or 0,3,5-7")
-        for part in spec.split(","):
-            part = part.strip()
-            m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
-            if not m:
-                raise ValueError(f"--steps: cannot parse {part!r}; use 0-based step indices "
-                                 "and inclusive ranges like 31-50 or 0,3,5-7")
-            lo = int(m.group(1))
-            hi = int(m.group(2)) if m.group(2) else lo
-            if hi < lo:
-                raise ValueError(f"--steps: range {part!r} is reversed; write {hi}-{lo}")
-            items.extend(range(lo, hi + 1))
+        items = parse_ranges(spec, "--steps", "31-50 or 0,3,5-7 (0-based steps)")
     else:
         items = [int(s) for s in spec]
     if any(s < 0 for s in items):

@@ -35,7 +35,7 @@ from .registry import get_problem, get_solver, make_params
 from .store import RunStore
 from .sweep import RunSpec, Spec, Sweep
 
-__all__ = ["Plan", "plan", "per_low", "execute", "perform", "instance_reference", "machine_info"]
+__all__ = ["Plan", "plan", "per_low", "result_fields", "execute", "perform", "instance_reference", "machine_info"]
 
 #: Consensus references are computed for explicit instances up to this size.
 REFERENCE_MAX_N = 3000
@@ -120,6 +120,21 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / max(1.0, float(np.linalg.norm(b))))
 
 
+def result_fields(res) -> dict:
+    """The run-store columns that come from a :class:`~lcpbench.SolveResult` alone."""
+    v = res.verified
+    return {
+        "solved": bool(res.solved), "false_convergence": bool(res.false_convergence),
+        "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
+        "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
+        "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
+        "threshold": res.threshold, "mvps": res.mvps,
+        "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
+        "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
+        "iterations": res.iterations, "time_s": res.time_s, "mvp_time_s": res.mvp_time_s,
+    }
+
+
 def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float] = None
             ) -> tuple[dict, pd.DataFrame]:
     """Solve one run and build its result row and history."""
@@ -132,18 +147,8 @@ def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float
         status = "timeout"
     v = res.verified
     row = _base_row(run, lcp)
-    row.update({
-        "status": status, "message": message, "solved": res.solved,
-        "false_convergence": res.false_convergence,
-        "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
-        "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
-        "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
-        "threshold": res.threshold, "mvps": res.mvps,
-        "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
-        "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
-        "iterations": res.iterations, "time_s": res.time_s, "mvp_time_s": res.mvp_time_s,
-        "info": json.dumps(res.info, sort_keys=True, default=str), "started": started,
-    })
+    row.update({"status": status, "message": message, **result_fields(res),
+                "info": json.dumps(res.info, sort_keys=True, default=str), "started": started})
     if ref is not None and lcp.n > 0 and np.all(np.isfinite(res.x)):
         w = lcp.residual_w(res.x)
         row["ref_err_w"] = _rel(w, np.asarray(ref["w"]))

@@ -38,6 +38,7 @@ import pandas as pd
 from .context import Budget
 from .registry import get_solver, make_params, parse_spec
 from .residuals import make_stop_rule
+from .runner import result_fields
 from .store import RunStore
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL"]
@@ -198,7 +199,6 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                 print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
                 break
             res = rec.result
-            v = res.verified
             over = rec.max_overlap > limit
             message = res.message or ""
             if over:
@@ -214,15 +214,7 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                             rule.kind, solver_params, problem_params)
             row.update({
                 "n": rec.n, "status": res.status.value, "message": message,
-                "solved": bool(res.solved), "false_convergence": bool(res.false_convergence),
-                "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
-                "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
-                "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
-                "threshold": res.threshold, "mvps": res.mvps,
-                "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
-                "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
-                "iterations": res.iterations, "time_s": res.time_s,
-                "mvp_time_s": res.mvp_time_s, "sim_total_s": rec.total_s,
+                **result_fields(res), "sim_total_s": rec.total_s,
                 "max_overlap": rec.max_overlap,
                 "info": json.dumps(extra, sort_keys=True, default=str),
                 "started": started, "finished": _now()})

@@ -53,6 +53,7 @@ import numpy as np
 
 from lcpbench import LCP, Operator, Reference, register_problem
 from lcpbench.operator import dense_uncounted
+from lcpbench.ranges import parse_ranges
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "shipped_sets", "parse_instances", "FORMAT", "VERSION",
@@ -612,21 +613,10 @@ def parse_instances(spec: str, count: int) -> list[int]:
     """
     if not spec.strip():
         return list(range(count))
-    out: list[int] = []
-    for part in spec.split(","):
-        part = part.strip()
-        m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
-        if not m:
-            raise ValueError(f"instances: cannot parse {part!r}; use positions and inclusive "
-                             "ranges like '0-9' or '0,3,5-7'")
-        lo = int(m.group(1))
-        hi = int(m.group(2)) if m.group(2) else lo
-        if hi < lo:
-            raise ValueError(f"instances: range {part!r} is reversed; write it as {hi}-{lo}")
-        if hi >= count:
-            raise ValueError(f"instances: position {hi} is out of range, the set has "
-                             f"{count} instance(s) (positions 0-{count - 1})")
-        out.extend(i for i in range(lo, hi + 1) if i not in out)
+    out = parse_ranges(spec, "instances", "'0-9' or '0,3,5-7'")
+    if out and max(out) >= count:
+        raise ValueError(f"instances: position {max(out)} is out of range, the set has "
+                         f"{count} instance(s) (positions 0-{count - 1})")
     return out
 
 
