@@ -52,15 +52,28 @@ class ConfirmedReport:
         self.drift, self.prev_norm = 0.0, None
         return self.ctx.A @ z + self.ctx.b
 
-    def __call__(self, z: np.ndarray, G: np.ndarray) -> bool:
+    def __call__(self, z: np.ndarray, G: np.ndarray, *, exact: bool = False,
+                 always: bool = False) -> bool:
+        """Report ``(z, G)``; True means stop.
+
+        ``exact=True`` says ``G`` was just computed as ``A z + b`` (nothing to
+        confirm; the drift bound restarts). ``always=True`` says the caller's
+        recurrence has rounding the norm-based bound does not see (e.g. ``A d``
+        formed as a difference of two large products): a claim that meets the
+        threshold is then always confirmed.
+        """
         norm = float(np.linalg.norm(G))
-        if self.prev_norm is not None:
+        if exact:
+            self.drift = 0.0
+        elif self.prev_norm is not None:
             self.drift += self.scale * (self.prev_norm + norm)
         self.prev_norm = norm
         thr = self.ctx.threshold
         claim = float(np.linalg.norm(np.minimum(z, G)))
         confirmed = False
-        if self.drift > 0.0 and claim <= thr < claim + self.drift and np.all(np.isfinite(G)):
+        doubt = always or thr < claim + self.drift
+        if not exact and self.drift + always > 0.0 and claim <= thr and doubt \
+                and np.all(np.isfinite(G)):
             G[...] = self.exact(z)
             self.prev_norm = float(np.linalg.norm(G))
             self.ctx.info["confirmations"] += 1

@@ -261,8 +261,10 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
                 return ctx.finish(x, w, Status.stagnated,
                                   "Armijo line search failed along the Newton and gradient "
                                   "directions")
-        x, w = step
-        if report(x, w):                 # w may be replaced by the exact A x + b
+        x, w, exact = step
+        # a recurrence w = w + tau A dx inherits the rounding of A dx = A y - u (a difference
+        # of two products that can cancel): a convergence claim on it is always confirmed
+        if report(x, w, exact=exact, always=True):
             return ctx.finish(x, w)
 
 
@@ -310,17 +312,19 @@ def _newton_direction(ctx: SolverContext, p: MinMapParams, x, w, H, S, F, counte
 
 def _line_search(ctx: SolverContext, p: MinMapParams, x, w, d, Ad, f0: float, gd: float,
                  project: bool = True):
-    """Armijo backtracking on ``1/2||min(x,w)||^2``; ``(x, w)`` or None.
+    """Armijo backtracking on ``1/2||min(x,w)||^2``; ``(x, w, exact)`` or None.
 
     Trials are ``max(0, x + tau d)`` when ``project`` (the source's projected
     search), else ``x + tau d``. A trial that is not clipped uses ``w + tau A d``
-    (no product) when ``A d`` is known; otherwise it costs one MVP.
+    (no product) when ``A d`` is known; otherwise it costs one MVP. ``exact``
+    says whether the accepted ``w`` is a fresh product rather than a recurrence.
     """
     A, b = ctx.A, ctx.b
     tau = 1.0
     for k in range(p.max_backtracks + 1):
         z = x + tau * d
-        if Ad is not None and (not project or np.all(z >= 0)):
+        exact = not (Ad is not None and (not project or np.all(z >= 0)))
+        if not exact:
             wz = w + tau * Ad
         else:
             z = np.maximum(z, 0.0)
@@ -331,7 +335,7 @@ def _line_search(ctx: SolverContext, p: MinMapParams, x, w, d, Ad, f0: float, gd
         fz = 0.5 * float(Hz @ Hz)
         if fz <= f0 + p.beta * tau * gd:
             ctx.info["backtracks"] += k
-            return z, wz
+            return z, wz, exact
         tau *= p.alpha
     ctx.info["backtracks"] += p.max_backtracks
     return None
