@@ -290,7 +290,6 @@ def test_levels_and_blocks_agree_with_all_expansions():
 
 
 def test_fmm_far_field_matches_direct():
-    pytest.importorskip("fmm3dpy")
     c = _random_cluster(10, 4, 14.0)
     ft = np.random.default_rng(2).standard_normal(60)
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-9)
