@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import html
-import io
 import json
 import math
 from collections.abc import Iterable, Sequence
@@ -31,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from . import plots
 
 __all__ = [
     "GRID_MODELS",
@@ -571,17 +572,6 @@ def _heat(ax, grid: pd.DataFrame, column: str, title: str, cbar: str, fmt: str,
                         color="white" if M[a, b] < mid else "black")
 
 
-def _svg_of(fig) -> str:
-    import matplotlib.pyplot as plt
-
-    buf = io.StringIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="svg", metadata={"Date": None})
-    plt.close(fig)
-    text = buf.getvalue()
-    return text[text.index("<svg"):]
-
-
 def _figure(ncols: int, width: float, height: float = 3.4):
     import matplotlib
 
@@ -608,7 +598,7 @@ def heatmap_svg(table: pd.DataFrame) -> str:
           "log10 error", ".2f", "viridis", fig)
     _heat(axes[0, 1], grid, "median_low_per_high", "low MVPs per high MVP (median)",
           "t_high / t_low", ".3g", "magma", fig)
-    return _svg_of(fig)
+    return plots.svg_of(fig)
 
 
 def cottle_heatmap_svg(table: pd.DataFrame) -> str:
@@ -621,7 +611,7 @@ def cottle_heatmap_svg(table: pd.DataFrame) -> str:
     fig, axes = _figure(1, max(4.5, 2.5 + 0.7 * ncol))
     _heat(axes[0, 0], grid, "pct", "% instances with ||A_low - A||_inf < c(A)", "%",
           ".0f", "cividis", fig)
-    return _svg_of(fig)
+    return plots.svg_of(fig)
 
 
 def _html_table(df: pd.DataFrame) -> str:

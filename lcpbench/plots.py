@@ -25,7 +25,8 @@ def _figure(width: float = 7.0, height: float = 3.6):
     return plt.subplots(figsize=(width, height))
 
 
-def _svg(fig) -> str:
+def svg_of(fig) -> str:
+    """A matplotlib figure as inline SVG text (closed afterwards; no date, stable ids)."""
     import matplotlib.pyplot as plt
 
     buf = io.StringIO()
@@ -65,7 +66,7 @@ def boxplot_svg(data: pd.DataFrame, group: str, value: str, by: str, title: str,
         ax.set_yscale("log")
     ax.set_title(title)
     ax.legend(fontsize=7, ncol=3, loc="best")
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def _colors(k: int):
@@ -85,7 +86,7 @@ def curves_svg(curves: dict, xlabel: str, title: str) -> str:
     ax.set_ylabel("log10 ||min(x, Ax+b)|| (verified)")
     ax.set_title(title)
     ax.legend(fontsize=7, ncol=2)
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def profile_svg(profile: pd.DataFrame, title: str) -> str:
@@ -99,7 +100,7 @@ def profile_svg(profile: pd.DataFrame, title: str) -> str:
     ax.set_ylim(0, 1.02)
     ax.set_title(title)
     ax.legend(fontsize=7, ncol=2, loc="lower right")
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def work_precision_svg(wp: pd.DataFrame, prefix: str, xlabel: str, title: str) -> str:
@@ -118,7 +119,7 @@ def work_precision_svg(wp: pd.DataFrame, prefix: str, xlabel: str, title: str) -
     ax.set_ylabel("residual level reached")
     ax.set_title(title)
     ax.legend(fontsize=7, ncol=2)
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def prefix_ids(svg: str, key: str) -> str:
