@@ -420,6 +420,30 @@ def upsampling_matrix(p: int, q: int) -> np.ndarray:
     return U
 
 
+@lru_cache(maxsize=None)
+def projection_matrix(p: int, q: int) -> np.ndarray:
+    """``(3 N_p, 3 N_q)``: values on the order-q grid (q >= p) -> their L2 projection onto
+    the VSH of degree <= p, sampled on the order-p grid.
+
+    Used for the near field between close spheres: the traction a close sphere induces
+    is sharply peaked (width ~ sqrt(gap)) and has content far beyond degree p.
+    Sampling it at the order-p nodes (Nystrom) aliases that content into the
+    resolved modes, and a node facing the neighbour (the lattice scene's axis-aligned
+    contacts hit one for even p) makes the discrete operator indefinite and GMRES
+    stall.  Projecting it (a Galerkin treatment of the near field, quadrature on
+    the finer order-q grid) keeps the spectrum of the second-kind operator."""
+    p, q = _check_p(p), _check_p(q)
+    if q < p:
+        raise ValueError(f"projection from order {q} to order {p} needs q >= p")
+    g = sphere_grid(q)
+    Sq = sampled_basis(p, q)
+    sw = np.repeat(np.sqrt(g.weights), 3)
+    Aq = np.linalg.pinv(sw[:, None] * Sq, rcond=1e-10) * sw[None, :]
+    P = np.ascontiguousarray(vsh_basis(p).B @ Aq)
+    P.setflags(write=False)
+    return P
+
+
 RHO_GRID = 1.02 * 1.04 ** np.arange(153)
 """Distances (source radii, from the source centre) at which quadrature errors are measured."""
 
