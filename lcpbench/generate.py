@@ -328,7 +328,9 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
                 k = scene.step_index
                 store = k in todo
                 scene.params = with_lows if store else sim_params
-                problem = scene.build(warm_start=True)
+                # forward operator only: the stored matrices are (A + A')/2 of n forward
+                # products (the live symmetrised operator would cost 2n solves)
+                problem = scene.build(warm_start=True, symmetrize=False)
                 lcp = problem.lcp
                 if store:
                     _write_step(w, scene, problem, k, scene_spec, lows, consensus, written,

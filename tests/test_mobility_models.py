@@ -55,3 +55,33 @@ def test_live_bim_scene_keeps_spheres_apart_and_solves_every_step():
             active += 1
             assert rec.result.lofi_mvps["rpy"] > 0
     assert active > 0
+
+
+def test_live_bim_contact_operator_is_symmetrised_with_the_adjoint():
+    """The boundary-integral contact operator is D'(M + M')D/2: symmetric to the GMRES
+    tolerance, two mobility solves per product, while the one-solve operator
+    (symmetrize=False) keeps the discretisation's asymmetry."""
+    from lcpbench.operator import dense_uncounted
+    from lcpbench.problems.suspension.contacts import build_contact_problem
+
+    c = np.array([[0.0, 0.0, 0.0], [2.05, 0.3, 0.0], [0.3, 2.2, 0.2], [0.2, 0.8, 2.1]])
+    F = np.array([[1.0, 0.5, 0.0], [-1.0, 0.0, 0.2], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    kw = dict(dt=0.1, delta=0.5, model="bim", p=4, eps_gmres=1e-11, low=("p3",))
+    prob = build_contact_problem(c, 1.0, F, **kw)
+    n = prob.lcp.n
+    assert n >= 3 and prob.lcp.meta["symmetrized"] and prob.lcp.meta["symmetric"]
+    before = prob.extra_solves
+    A = dense_uncounted(prob.lcp.A)
+    assert prob.extra_solves - before == 2 * n          # forward + adjoint per column
+    scale = np.abs(A).max()
+    assert np.abs(A - A.T).max() <= 1e-8 * scale
+    L = dense_uncounted(prob.lcp.low["p3"])
+    assert np.abs(L - L.T).max() <= 1e-8 * np.abs(L).max()
+    raw = build_contact_problem(c, 1.0, F, symmetrize=False, **kw)
+    B = dense_uncounted(raw.lcp.A)
+    assert not raw.lcp.meta["symmetrized"]
+    assert np.abs(B - B.T).max() > 1e-6 * scale          # the discretisation's asymmetry
+    np.testing.assert_allclose(A, (B + B.T) / 2, atol=1e-8 * scale)
+    # the position update uses the forward mobility M D x, not the symmetrised one
+    x = np.linspace(0.1, 1.0, n)
+    np.testing.assert_allclose(prob.velocities(x), raw.velocities(x), atol=1e-8)

@@ -32,8 +32,9 @@ accuracy, not by a fixed distance:
   ``near_block_mb``, closest first; pairs that would need a grid of order >= 1.5 p
   also get blocks while the budget lasts (a block product is cheaper than that
   sum); expansion pairs beyond the budget are evaluated on the fly (same values).
-  The near traction is evaluated on sphere i's grid of order 2p and projected onto
-  its degree-p VSH (a Galerkin treatment of the near field,
+  Pairs with a gap below twice the source radius are always expansion pairs, and
+  their traction is evaluated on sphere i's grid of order 2p and projected onto its
+  degree-p VSH (a Galerkin treatment of the near field,
   :func:`sphere_vsh.projection_matrix`): sampling the sharply peaked near traction
   at the order-p nodes aliases it, and made the operator indefinite (GMRES stalled
   at p = 4 and 6 when a node faced a neighbour at gap 0.01a);
@@ -51,6 +52,15 @@ the residual; residuals at restarts and the reported final residual use full
 accuracy.  Dense per-sphere products and GMRES vector work run in compiled loops
 rather than threaded BLAS, whose threads would compete with the compiled parallel
 kernels on few cores.
+
+The transpose of the discrete mobility (``rmatvec``; the discrete map is symmetric only
+to about 1e-3 near contact, and the contact layer symmetrises with it) is
+``M' = Bt' G^{-T} P' R'`` for ``M = R P G^{-1} Bt`` (``Bt`` = :meth:`BimMobility.rhs`, ``G``
+the preconditioned traction operator, ``P`` the one-body preconditioner, ``R`` the
+read-off): every piece is transposed exactly (compiled transposed kernels for the direct
+sums, the stored blocks, the on-the-fly expansions and the Faxen read-off), and ``G'`` is
+solved by the same GMRES at full accuracy.  With ``far="fmm"`` the FMM sum is
+transposed by a stresslet FMM at the same tolerance.
 
 The setup done once per configuration (grids, pair lists per accuracy rung,
 source points, blocks) is reused by every product.  Accuracy to expect
@@ -70,9 +80,15 @@ from scipy.sparse.linalg import LinearOperator
 from .geometry import check_configuration, check_no_overlap, check_viscosity
 from .kernels import (
     apply_blocks,
+    apply_blocks_adjoint,
+    apply_blocks_adjoint_serial,
     apply_blocks_serial,
     center_readout,
+    center_readout_adjoint,
     combine_rows,
+    direct_traction_adjoint,
+    direct_traction_adjoint_serial,
+    direct_traction_adjoint_skip,
     direct_traction_ranges,
     direct_traction_ranges_serial,
     direct_traction_skip,
@@ -82,9 +98,11 @@ from .kernels import (
     synthesize_forces,
     synthesize_forces_serial,
     traction_expansion,
+    traction_expansion_adjoint,
     traction_response_batch,
 )
 from .sphere_vsh import (
+    _coefficient_matrix,
     _expansion_factors,
     default_quad_tol,
     expansion_coefficients,
@@ -102,10 +120,19 @@ __all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning", "far_ratio", 
 _PARALLEL_WORK = 4e6
 """Products with fewer multiply-adds than this run in the serial build of a kernel."""
 
-_NEAR_UPSAMPLE = 2
-"""Near-field traction is evaluated on the grid of order ``_NEAR_UPSAMPLE * p`` and
-projected onto degree p (measured: factors 1.5, 2 and 3 give the same spectra and
-errors to two digits; 1 is plain node sampling)."""
+_NEAR_UPSAMPLE = 2.0
+"""The traction of a pair in the projected zone is evaluated on the grid of order
+``ceil(_NEAR_UPSAMPLE * p)`` and projected onto degree p.  Measured on a packed 27-sphere
+cluster (gaps >= 0.1a): factors 1.5, 2 and 3 give the same spectra, and asymmetries
+``max|A - A'|/max|A|`` of D'MD at p = 6 of 2.7e-3, 2.2e-4 and 1.3e-4; 1 is plain node
+sampling."""
+
+_PROJECT_RHO = 3.0
+"""Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
+with the projected near field, whatever the quadrature tolerance, so that the
+discretisation does not change with ``eps_gmres``; beyond, values at the nodes
+(quadrature, or expansions at tight tolerances).  Measured on the same cluster at
+p = 6: zone radii 2, 3, 4, 6 give asymmetries 6.7e-4, 2.2e-4, 1.9e-4, 1.9e-4."""
 
 _RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -145,6 +172,22 @@ def _csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
     ptr[1:] = np.cumsum([len(x) for x in lists])
     idx = np.array([j for x in lists for j in x], dtype=np.int64)
     return ptr, idx
+
+
+def _group_ranges(ptr: np.ndarray, start: np.ndarray, stop: np.ndarray, n_per: int) -> dict:
+    """Regroup per-target source ranges (``ptr, start, stop`` as in ``_dir_ranges``: target
+    sphere i sums ``start[k]:stop[k]`` for k in ``ptr[i]:ptr[i+1]``) by source range, for
+    the transposed sums (:func:`kernels.direct_traction_adjoint`)."""
+    triples = sorted((int(start[k]), int(stop[k]), i)
+                     for i in range(ptr.size - 1) for k in range(ptr[i], ptr[i + 1]))
+    starts = np.array([t[0] for t in triples], dtype=np.int64)
+    first = (np.nonzero(np.r_[True, starts[1:] != starts[:-1]])[0] if triples
+             else np.zeros(0, dtype=np.int64))
+    return {"start": starts[first],
+            "stop": np.array([triples[k][1] for k in first], dtype=np.int64),
+            "ptr": np.r_[first, len(triples)].astype(np.int64),
+            "tgt": np.array([t[2] for t in triples], dtype=np.int64),
+            "work": n_per * sum(b - a for a, b, _ in triples)}
 
 
 def gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int,
@@ -223,6 +266,30 @@ def gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int
                 return x, its, res
 
 
+def _fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.ndarray,
+                          eps: float) -> np.ndarray:
+    """Transpose of :func:`fmm.fmm_traction` (points are sources and targets alike).
+
+    The traction at ``x_k`` (normal ``n_k``) of a point force ``f`` at ``y`` is
+    ``-(3/4 pi) (r.n_k) r (r.f) / |r|^5`` with ``r = x_k - y``; its transpose, the adjoint
+    force at ``y`` of adjoint tractions ``b_k``, is ``(3/4 pi) sum_k r' (r'.b_k)(r'.n_k) /
+    |r'|^5`` with ``r' = y - x_k``: the velocity of stresslets of strength ``b_k`` and
+    orientation ``n_k``, which is fmm3dpy's stresslet normalisation (checked against the
+    direct sum to 1e-15).  Self points are excluded, as in the forward FMM.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Adjoint point forces at every point.
+    """
+    import fmm3dpy
+
+    out = fmm3dpy.stfmm3d(eps=float(max(eps, 1e-15)), sources=np.ascontiguousarray(points.T),
+                          strslet=np.ascontiguousarray(trac_bar.T),
+                          strsvec=np.ascontiguousarray(normals.T), ifppreg=1)
+    return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)
+
+
 class BimMobility(LinearOperator):
     """Mobility of M rigid spheres by the traction boundary integral equation.
 
@@ -258,11 +325,14 @@ class BimMobility(LinearOperator):
     far : {"direct", "fmm"}
         Far-field engine: compiled direct sums, or fmm3dpy's ``stfmm3d`` (extra
         ``fmm``; pays off only beyond roughly 50-100k grid points).
-    near_upsample : int
+    near_upsample : float
         The traction of a close (expansion) pair is evaluated on the grid of order
-        ``near_upsample * p`` and projected onto degree p; 1 samples it at the nodes
-        (Nystrom), which aliases the peaked near traction and can make the operator
-        indefinite near contact (default 2).
+        ``ceil(near_upsample * p)`` and projected onto degree p; 1 samples it at the
+        nodes (Nystrom), which aliases the peaked near traction and can make the
+        operator indefinite near contact (default 2).  Every pair with a gap below
+        twice the source radius is an expansion pair (projected) at any ``eps_gmres``,
+        so the discretisation does not depend on the tolerance; pairs farther apart
+        are sampled at the nodes.
 
     Attributes
     ----------
@@ -270,6 +340,8 @@ class BimMobility(LinearOperator):
         Iterations of every product, in order.
     residuals : list of float
         Final relative residual ``||b - A sigma|| / ||b||`` of every product.
+    adjoint_iterations, adjoint_residuals : list
+        The same for every transposed product (:meth:`rmatvec`, see :meth:`_rmatvec`).
     n_far_pairs, n_near_pairs : int
         Ordered pairs handled by direct quadrature (not blocked) and pairs too
         close for any source grid (expansions).
@@ -288,7 +360,7 @@ class BimMobility(LinearOperator):
                  mu: float = 1.0, on_failure: str = "warn", recycle: int = 8,
                  maxiter: int = 500, near_block_mb: float = 2048.0,
                  quad_tol: float | None = None, far: str = "direct",
-                 fmm_min_points: int = 0, near_upsample: int = _NEAR_UPSAMPLE) -> None:
+                 fmm_min_points: int = 0, near_upsample: float = _NEAR_UPSAMPLE) -> None:
         c, r = check_configuration(centers, radii)
         self.p = _check_p(p)
         self.eps_gmres = _check_eps(eps_gmres)
@@ -326,18 +398,26 @@ class BimMobility(LinearOperator):
         self._read_S = self._so.readout @ self._so.S          # (6, 3N) unit sphere
         self._basis = vsh_basis(self.p)
         self._analysis_T = np.ascontiguousarray(self._basis.A.T)
-        if isinstance(near_upsample, bool) or not isinstance(near_upsample, (int, np.integer)) \
-                or near_upsample < 1:
-            raise ValueError(f"near_upsample = {near_upsample!r} must be an integer >= 1 (order of "
+        try:
+            up = float(near_upsample)
+        except (TypeError, ValueError):
+            up = float("nan")
+        if isinstance(near_upsample, bool) or not (np.isfinite(up) and up >= 1):
+            raise ValueError(f"near_upsample = {near_upsample!r} must be a number >= 1 (order of "
                              "the near-field target grid in units of p; 1 = sample at the nodes)")
-        self.near_upsample = int(near_upsample)
-        self._near_grid = sphere_grid(self.near_upsample * self.p)
-        self._near_proj = (None if self.near_upsample == 1     # plain node sampling
-                           else projection_matrix(self.p, self.near_upsample * self.p))
+        self.near_upsample = up
+        q_near = max(self.p, int(np.ceil(up * self.p - 1e-9)))
+        self._near_grid = sphere_grid(q_near)
+        self._near_proj = (None if q_near == self.p           # plain node sampling
+                           else projection_matrix(self.p, q_near))
         self._setup_interactions()
         self._history: deque = deque(maxlen=max(int(recycle), 0))
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
+        self._adj_history: deque = deque(maxlen=max(int(recycle), 0))
+        self._adj: dict | None = None             # transposed structures, built on first use
+        self.adjoint_iterations: list[int] = []
+        self.adjoint_residuals: list[float] = []
 
     # ---- pair classification ----------------------------------------------------------------
     def _setup_interactions(self, all_expansion: bool = False) -> None:
@@ -378,6 +458,8 @@ class BimMobility(LinearOperator):
         self._native = native
         if self.far == "fmm":       # the FMM works on the native grid: no coarser levels
             level_of[(level_of >= 0) & (level_of < native)] = native
+        if self._near_proj is not None:     # the projected zone: expansions at any tolerance
+            level_of[(rho < _PROJECT_RHO) & (level_of >= 0)] = -2
         if all_expansion:
             level_of[:] = -2
             np.fill_diagonal(level_of, -1)
@@ -463,35 +545,49 @@ class BimMobility(LinearOperator):
         blocked.sort()                                     # grouped by target sphere
         fac = np.ascontiguousarray(_expansion_factors(p))
         E = np.empty((len(blocked), 3 * N, nv))
-        nodes = self._near_grid.nodes                     # responses on the finer grid,
-        Nq = nodes.shape[0]                               # projected onto degree p
-        chunk = max(1, int(64e6 // (Nq * 9 * (p + 1) ** 2 * 16)))     # ~64 MB of responses
-        for k0 in range(0, len(blocked), chunk):
-            part = blocked[k0:k0 + chunk]
-            ii = np.array([i for i, _ in part])
-            jj = np.array([j for _, j in part])
-            tgt = (self.centers[ii, None, :] + self.radii[ii, None, None] * nodes[None]).reshape(-1, 3)
-            resp = np.empty((tgt.shape[0], 3, p + 1, p + 1, 3), dtype=np.complex128)
-            traction_response_batch(np.ascontiguousarray(tgt),
-                                    np.ascontiguousarray(np.tile(nodes, (len(part), 1))),
-                                    np.ascontiguousarray(np.repeat(self.centers[jj], Nq, axis=0)),
-                                    np.repeat(self.radii[jj], Nq), p, fac, resp)
-            R = resp.reshape(len(part), Nq, -1, 3).transpose(0, 1, 3, 2).reshape(len(part), 3 * Nq, -1)
-            Ep = (R[:, :, flat] * cfac[None, None, :]).real
-            E[k0:k0 + len(part)] = Ep if self._near_proj is None else np.matmul(self._near_proj, Ep)
+        # expansion pairs: responses on the finer grid, projected onto degree p;
+        # quadrature pairs (smooth traction) and node sampling: at the native nodes
+        projected = np.array([self._projected(i, j) for i, j in blocked], dtype=bool)
+        for proj in (True, False):
+            idx = np.nonzero(projected == proj)[0]
+            nodes = self._near_grid.nodes if proj else self._grid.nodes
+            Nq = nodes.shape[0]
+            chunk = max(1, int(64e6 // (Nq * 9 * (p + 1) ** 2 * 16)))     # ~64 MB of responses
+            for k0 in range(0, idx.size, chunk):
+                part = idx[k0:k0 + chunk]
+                ii = np.array([blocked[k][0] for k in part])
+                jj = np.array([blocked[k][1] for k in part])
+                tgt = (self.centers[ii, None, :] + self.radii[ii, None, None] * nodes[None]).reshape(-1, 3)
+                resp = np.empty((tgt.shape[0], 3, p + 1, p + 1, 3), dtype=np.complex128)
+                traction_response_batch(np.ascontiguousarray(tgt),
+                                        np.ascontiguousarray(np.tile(nodes, (len(part), 1))),
+                                        np.ascontiguousarray(np.repeat(self.centers[jj], Nq, axis=0)),
+                                        np.repeat(self.radii[jj], Nq), p, fac, resp)
+                R = resp.reshape(len(part), Nq, -1, 3).transpose(0, 1, 3, 2).reshape(len(part), 3 * Nq, -1)
+                Ep = (R[:, :, flat] * cfac[None, None, :]).real
+                E[part] = np.matmul(self._near_proj, Ep) if proj else Ep
         self._blocks = E
         self._block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
         self._block_src = np.array([j for _, j in blocked], dtype=np.int64)
         self._block_ptr = np.searchsorted(self._block_tgt, np.arange(M + 1)).astype(np.int64)
-        lists: list[list[int]] = [[] for _ in range(M)]
+        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
+        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
         for i, j in rest:
             if self._level_of[i, j] == -2:
-                lists[i].append(j)
+                (lists if self._near_proj is None or self._projected(i, j) else node_lists)[i].append(j)
         self._blocked = np.zeros((M, M), dtype=bool)
         for i, j in blocked:
             self._blocked[i, j] = True
         self._fly_ptr, self._fly_idx = _csr(lists)
+        self._flyn_ptr, self._flyn_idx = _csr(node_lists)
         self.n_block_pairs = len(blocked)
+
+    def _projected(self, i: int, j: int) -> bool:
+        """Whether pair (i, j) gets the projected near field (the zone ``rho < 2``)."""
+        if self._near_proj is None or self._level_of[i, j] != -2:
+            return False
+        d = float(np.linalg.norm(self.centers[i] - self.centers[j]))
+        return (d - self.radii[i]) / self.radii[j] < _PROJECT_RHO
 
     # ---- the boundary integral operator -------------------------------------------------
     def _rows(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
@@ -532,6 +628,10 @@ class BimMobility(LinearOperator):
             trac = np.zeros((M * N, 3))
             if self._fly_idx.size:
                 out += self._near_on_the_fly(s)
+            if self._flyn_idx.size:                 # expansion pairs beyond the zone
+                traction_expansion(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
+                                   self._flyn_ptr, self._flyn_idx, self.centers, self.radii,
+                                   expansion_coefficients(p, s), p, trac)
             if self._n_src:
                 f = self._source_forces(s, coef)
                 ptr, start, stop = self._dir_ranges[min(rung, len(self._dir_ranges) - 1)]
@@ -559,9 +659,9 @@ class BimMobility(LinearOperator):
         return out.reshape(-1)
 
     def _near_on_the_fly(self, s: np.ndarray) -> np.ndarray:
-        """Near-field traction of the expansion pairs without a stored block: evaluated on
-        the finer grid of every sphere that has such pairs and projected onto degree p
-        (the same values a stored block gives)."""
+        """Near-field traction of the projected-zone expansion pairs without a stored
+        block: evaluated on the finer grid of every sphere that has such pairs and
+        projected onto degree p (the same values a stored block gives)."""
         M, N, p = self.M, self._N, self.p
         nodes = self._near_grid.nodes
         Nq = nodes.shape[0]
@@ -650,6 +750,246 @@ class BimMobility(LinearOperator):
             raise ValueError("forces/torques contain NaN or inf; pass finite values")
         sigma = self.solve_density(x)
         return self.velocities(sigma).reshape(-1)
+
+    # ---- the transposed (adjoint) product ------------------------------------------------
+    # M = R P G^{-1} Bt with Bt = rhs, G v = A_bie(P v), P = one-body preconditioner and
+    # R = velocities, so M' = Bt' G^{-T} P' R' with G' = P' A_bie'.  Every piece below is
+    # the exact transpose of the discrete forward piece (full accuracy, rung 0).  The
+    # expansion pieces (Faxen read-off, on-the-fly near field) use transposed compiled
+    # kernels rather than per-pair matrices: the extra memory is one complex array of
+    # 5 (p+1)^2 coefficients per sphere (0.8 MB at M = 125, p = 8), a few 3N x 3N
+    # one-sphere matrices and index arrays; the stored near blocks are reused as they are.
+
+    def _adjoint_setup(self) -> dict:
+        """Structures of the transposed product, built once on first adjoint use."""
+        if self._adj is not None:
+            return self._adj
+        M, N, p = self.M, self._N, self.p
+        adj: dict = {
+            "self": np.ascontiguousarray(self._so.Kp + self._so.L),
+            "precond": np.ascontiguousarray(self._so.precond),
+            "analysis": np.ascontiguousarray(self._basis.A),
+            "read": np.ascontiguousarray(self._read_S),
+            "proj": None if self._near_proj is None else np.ascontiguousarray(self._near_proj),
+            "synth": [None if S is None else np.ascontiguousarray(S.T) for S in self._synth],
+            "tgt": tuple(np.ascontiguousarray(a[:, k]) for a in (self._tgt_pts, self._tgt_nrm)
+                         for k in range(3)),
+        }
+        Cm = _coefficient_matrix(p)                              # (3N, 5 (p+1)^2), D = s @ Cm
+        adj["coef"] = np.ascontiguousarray(np.vstack([Cm.T.real, -Cm.T.imag]))
+        # direct sums at full accuracy (rung 0), grouped by source range; with far="fmm"
+        # also the native-grid pairs the forward product subtracts from the FMM sum
+        adj["direct"] = _group_ranges(*self._dir_ranges[0], N) if self._n_src else None
+        adj["fmm_sub"] = _group_ranges(*self._fmm_sub, N) if self.far == "fmm" else None
+        # on-the-fly expansion pairs, by source sphere
+        adj["fly"] = [self._fly_group(ptr, idx, grid) for ptr, idx, grid in (
+            (self._fly_ptr, self._fly_idx, self._near_grid),        # projected zone
+            (self._flyn_ptr, self._flyn_idx, self._grid)) if idx.size]   # node-sampled
+        # stored blocks, by source sphere
+        if self.n_block_pairs:
+            order = np.argsort(self._block_src, kind="stable").astype(np.int64)
+            adj["blk_order"] = order
+            adj["blk_ptr"] = np.searchsorted(self._block_src[order], np.arange(M + 1)).astype(np.int64)
+        self._adj = adj
+        return adj
+
+    def _expansion_adjoint(self, Dbar: np.ndarray) -> np.ndarray:
+        """Transpose of :func:`sphere_vsh.expansion_coefficients`: complex adjoint
+        coefficients (M, 5, p+1, p+1) -> grid densities (M, 3N)."""
+        flat = Dbar.reshape(self.M, -1)
+        return self._rows(np.hstack([flat.real, flat.imag]), self._adjoint_setup()["coef"])
+
+    def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid) -> dict:
+        """Adjoint structures of one group of on-the-fly expansion pairs (target lists
+        ``ptr``/``idx``) evaluated on ``grid``: target points and pairs by source sphere."""
+        tgt_i = np.nonzero(np.diff(ptr))[0]
+        nodes = grid.nodes
+        lists: list[list[int]] = [[] for _ in range(self.M)]
+        for b, i in enumerate(tgt_i):
+            for j in idx[ptr[i]:ptr[i + 1]]:
+                lists[j].append(b)
+        src_ptr, blk = _csr(lists)
+        return {"tgt": tgt_i, "size": grid.size, "ptr": src_ptr, "blk": blk,
+                "projected": grid is self._near_grid and self._near_proj is not None,
+                "pts": np.ascontiguousarray(
+                    (self.centers[tgt_i, None, :] + self.radii[tgt_i, None, None] * nodes[None]).reshape(-1, 3)),
+                "nrm": np.ascontiguousarray(np.tile(nodes, (tgt_i.size, 1)))}
+
+    def _near_on_the_fly_adjoint(self, ob: np.ndarray) -> np.ndarray:
+        """Transpose of the on-the-fly expansion pairs of :meth:`_apply_bie` (projected
+        zone, :meth:`_near_on_the_fly`, and node-sampled pairs beyond it) for adjoint
+        tractions ``ob`` (M, 3N)."""
+        adj = self._adjoint_setup()
+        p = self.p
+        Dbar = np.zeros((self.M, 5, p + 1, p + 1), dtype=np.complex128)
+        for g in adj["fly"]:
+            tb = self._rows(ob[g["tgt"]], adj["proj"]) if g["projected"] else ob[g["tgt"]]
+            traction_expansion_adjoint(g["pts"], g["nrm"], g["size"], g["ptr"], g["blk"],
+                                       self.centers, self.radii,
+                                       np.ascontiguousarray(tb.reshape(-1, 3)), p, Dbar)
+        return self._expansion_adjoint(Dbar)
+
+    def _source_forces_adjoint(self, f_bar: list[np.ndarray], s_bar: np.ndarray,
+                               coef_bar: np.ndarray) -> None:
+        """Transpose of :meth:`_source_forces`: adds the adjoint point forces to the
+        densities ``s_bar`` (native levels) and to the VSH coefficients ``coef_bar``."""
+        synth = self._adjoint_setup()["synth"]
+        for L, q in enumerate(self._levels):
+            J = self._lvl_spheres[L]
+            if J.size == 0:
+                continue
+            b0 = self._lvl_base[L]
+            nq = sphere_grid(q).size
+            Fb = np.stack([f[b0:b0 + J.size * nq] for f in f_bar], axis=1).reshape(J.size, nq, 3)
+            Fb = (Fb * self._src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
+            if synth[L] is None:
+                s_bar[J] += Fb
+            else:
+                coef_bar[J] += self._rows(Fb, synth[L])
+
+    def _apply_bie_adjoint(self, w: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`_apply_bie` at full accuracy (rung 0).  With ``far="fmm"``
+        the FMM sum is transposed by a stresslet FMM (:func:`_fmm_traction_adjoint`, same
+        tolerance) and the native-grid pairs the forward product removes are removed by
+        transposed direct sums, so the adjoint matches the forward to the FMM tolerance."""
+        adj = self._adjoint_setup()
+        M, N = self.M, self._N
+        ob = np.ascontiguousarray(np.asarray(w, dtype=float).reshape(M, 3 * N))
+        out = self._rows(ob, adj["self"])
+        if M > 1:
+            coef_bar = np.zeros((M, self._analysis_T.shape[1]))
+            if self._fly_idx.size or self._flyn_idx.size:
+                out += self._near_on_the_fly_adjoint(ob)
+            if self._n_src:
+                tb = ob.reshape(M * N, 3)
+                tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
+                f_bar = [np.zeros(self._n_src) for _ in range(3)]
+                g = adj["direct"]
+                if g["start"].size:
+                    fn = (direct_traction_adjoint if g["work"] > _PARALLEL_WORK
+                          else direct_traction_adjoint_serial)
+                    fn(*adj["tgt"], *tbc, N, g["ptr"], g["tgt"], g["start"], g["stop"],
+                       *self._src_xyz, *f_bar, False)
+                if self.far == "fmm":
+                    b0 = self._lvl_base[self._native]
+                    fb = _fmm_traction_adjoint(self._tgt_pts, self._tgt_nrm, tb, self.quad_tol)
+                    sub = [np.zeros(self._n_src) for _ in range(3)]
+                    g = adj["fmm_sub"]
+                    direct_traction_adjoint_skip(*adj["tgt"], *tbc, N, g["ptr"], g["tgt"],
+                                                 g["start"], g["stop"], *self._src_xyz, *sub, True)
+                    for k in range(3):
+                        f_bar[k][b0:b0 + M * N] += fb[:, k]
+                        f_bar[k] -= sub[k]
+                self._source_forces_adjoint(f_bar, out, coef_bar)
+            if self.n_block_pairs:
+                fn = (apply_blocks_adjoint if self._blocks.size > _PARALLEL_WORK
+                      else apply_blocks_adjoint_serial)
+                fn(self._blocks, adj["blk_ptr"], adj["blk_order"], self._block_tgt, ob, coef_bar)
+            out += self._rows(coef_bar, adj["analysis"])
+        return out.reshape(-1)
+
+    def _precondition_adjoint(self, z: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`_precondition`."""
+        return self._rows(z.reshape(self.M, -1), self._adjoint_setup()["precond"]).reshape(-1)
+
+    def velocities_adjoint(self, u: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`velocities`: rigid velocities (M, 6) -> stacked densities.
+
+        The self read-off is a dense (6, 3N) matrix per sphere; the Faxen read-off of the
+        other spheres' expansions is transposed by a compiled kernel
+        (:func:`kernels.center_readout_adjoint`), no per-pair matrices are stored."""
+        M, p = self.M, self.p
+        u = np.ascontiguousarray(np.asarray(u, dtype=float).reshape(M, 6))
+        us = np.empty((M, 6))
+        us[:, :3] = u[:, :3] * (self.radii / self.mu)[:, None]
+        us[:, 3:] = u[:, 3:] / self.mu
+        s = self._rows(us, self._adjoint_setup()["read"])
+        if M > 1:
+            Dbar = np.zeros((M, 5, p + 1, p + 1), dtype=np.complex128)
+            center_readout_adjoint(self.centers, self.radii, u, p, self.mu, Dbar)
+            s += self._expansion_adjoint(Dbar)
+        return s.reshape(-1)
+
+    def rhs_adjoint(self, w: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`rhs`: stacked densities -> (F, T) per sphere (length 6M)."""
+        w = np.asarray(w, dtype=float).reshape(self.M, self._N, 3)
+        a = self.radii[:, None]
+        out = np.empty((self.M, 6))
+        out[:, :3] = w.sum(axis=1) / (4 * np.pi * a ** 2)
+        out[:, 3:] = 3.0 * np.cross(self._grid.nodes[None], w).sum(axis=1) / (8 * np.pi * a ** 3)
+        return out.reshape(-1)
+
+    def _adjoint_operator(self, v: np.ndarray) -> np.ndarray:
+        """``G' v = P' A_bie' v``, the transpose of the preconditioned GMRES operator."""
+        return self._precondition_adjoint(self._apply_bie_adjoint(v))
+
+    def solve_adjoint(self, z: np.ndarray) -> np.ndarray:
+        """Solve ``G' w = z`` by GMRES (tolerance ``eps_gmres``, same restart and maxiter as
+        the forward solve, full accuracy) from a one-body start (``G' = I`` for one
+        sphere) improved by the stored adjoint solutions; convergence is reported as in
+        :meth:`solve_density`."""
+        z = np.asarray(z, dtype=float).reshape(-1)
+        nz = float(np.linalg.norm(z))
+        if nz == 0.0:
+            self.adjoint_iterations.append(0)
+            self.adjoint_residuals.append(0.0)
+            return np.zeros_like(z)
+        if self._adj_history:
+            Zk = np.stack([h[1] for h in self._adj_history], axis=1)
+            Wk = np.stack([h[0] for h in self._adj_history], axis=1)
+            alpha = np.linalg.lstsq(Zk, z, rcond=None)[0]
+            w0 = Wk @ alpha + (z - Zk @ alpha)
+        else:
+            w0 = z.copy()
+        restart = max(1, min(z.size, 60, self.maxiter))
+        w, its, res_g = gmres_solve(lambda v, k: self._adjoint_operator(v), z, w0,
+                                    self.eps_gmres, restart, self.maxiter, rungs=1)
+        res = float(np.linalg.norm(z - self._adjoint_operator(w)) / nz)
+        self.adjoint_iterations.append(its)
+        self.adjoint_residuals.append(res)
+        if res_g > self.eps_gmres or res > 10 * self.eps_gmres:
+            msg = (f"BIM adjoint GMRES did not converge: relative residual {res:.3g} after {its} "
+                   f"iterations (eps_gmres = {self.eps_gmres:g}, M = {self.M}, p = {self.p}); "
+                   "raise maxiter or eps_gmres, or check for near-contact spheres")
+            if self.on_failure == "raise":
+                raise RuntimeError(msg)
+            warnings.warn(msg, BimConvergenceWarning, stacklevel=3)
+        if self._adj_history.maxlen:
+            self._adj_history.append((w, z))
+        return w
+
+    def _rmatvec(self, y: np.ndarray) -> np.ndarray:
+        """Exact transpose of the discrete mobility: ``M' y = Bt' G^{-T} P' R' y``.
+
+        The discrete map is symmetric only to about 1e-3; this is its transpose to the
+        GMRES tolerance (a dot-product test ``<y, M x> = <M' y, x>`` holds to about
+        ``eps_gmres`` times the conditioning: 1e-12 for eps_gmres = 1e-12 on the test
+        clusters, 1e-8 on the packed 27-sphere lattice at eps_gmres = 1e-8).  Called by
+        scipy's ``rmatvec``, ``A.T @ y`` and ``A.H @ y``.
+
+        Cost: one GMRES solve like the forward product, at full quadrature accuracy
+        (no relaxation), about the forward time.  Memory: no per-pair matrices; the
+        stored near blocks are reused and the expansion pieces are transposed by
+        compiled kernels, so the extra memory is a complex array of ``5 (p+1)^2``
+        coefficients per sphere (0.8 MB at M = 125, p = 8), a few ``3N x 3N`` one-sphere
+        matrices and index arrays, built on first use.  With ``far="fmm"`` the FMM sum is
+        transposed by fmm3dpy's stresslet FMM (the traction kernel of a point force,
+        read as a function of the source, is a stresslet).
+        Iterations and residuals go to ``adjoint_iterations`` and ``adjoint_residuals``.
+
+        Raises
+        ------
+        ValueError
+            If ``y`` does not have 6M entries or contains NaN or inf.
+        """
+        y = np.asarray(y, dtype=float).reshape(-1)
+        if y.size != 6 * self.M:
+            raise ValueError(f"rmatvec needs {6 * self.M} velocities (U, Omega per sphere), "
+                             f"got {y.size}")
+        if not np.isfinite(y).all():
+            raise ValueError("velocities passed to rmatvec contain NaN or inf; pass finite values")
+        z = self._precondition_adjoint(self.velocities_adjoint(y))
+        return self.rhs_adjoint(self.solve_adjoint(z))
 
 
 def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,

@@ -20,13 +20,16 @@ order, and with ``U = U_nc + M D x`` it gives the LCP of eq. (defAandb)::
 Vectors of forces and velocities are ordered per sphere: ``(F_i, T_i)`` on
 rows ``6 i .. 6 i + 5`` map to ``(U_i, Omega_i)`` on the same rows.
 
-``A`` is never formed: it is a counted matrix-free operator whose product is
-one mobility solve, ``v -> D' (M (D v))``. It is as symmetric as the mobility:
-exactly for ``rpy`` and ``self``; only to about 1e-3 for the boundary-integral
-model, whose discrete mobility is not exactly symmetric (see DESIGN.md). The
-operator deliberately applies ``M`` once per product rather than
-``(D'MD + (D'MD)')/2``, which would double the cost of every MVP; the
-asymmetry is recorded in ``lcp.meta["symmetric"]``.
+``A`` is never formed: it is a counted matrix-free operator. For ``rpy`` and
+``self`` (exactly symmetric mobilities) a product is one mobility solve,
+``v -> D' (M (D v))``. The discrete boundary-integral mobility is symmetric only
+to its discretisation error (about 1e-3 near contact at p = 6, see
+docs/mobility.md), so its contact operator is symmetrised explicitly,
+``v -> D' (M + M') D v / 2``, with the exact adjoint of the discrete mobility
+(``BimMobility.rmatvec``, GMRES on the transposed equation): one forward and one
+adjoint solve per MVP, both inside the counted product, and the per-instance
+cost measurement includes both (``symmetrize=False`` gives the one-solve,
+slightly asymmetric operator; ``lcp.meta["symmetrized"]`` says which).
 """
 
 from __future__ import annotations
@@ -259,16 +262,40 @@ def _apply(M: LinearOperator, v: np.ndarray) -> np.ndarray:
     return np.asarray(M.matvec(v), dtype=np.float64).reshape(-1)
 
 
+def _apply_adjoint(M: LinearOperator, v: np.ndarray) -> np.ndarray:
+    return np.asarray(M.rmatvec(v), dtype=np.float64).reshape(-1)
+
+
+def _symmetrized(M: LinearOperator, D: sp.csc_matrix, Dt: sp.csr_matrix, v: np.ndarray,
+                 forward: Optional[np.ndarray] = None) -> np.ndarray:
+    """``D' (M + M') D v / 2``: the explicitly symmetrised contact operator (one forward
+    and one adjoint mobility solve; ``forward`` = ``M D v`` when already known)."""
+    Dv = D @ v
+    u = _apply(M, Dv) if forward is None else forward
+    return Dt @ (0.5 * (u + _apply_adjoint(M, Dv)))
+
+
+def needs_symmetrizing(model: MobilityModel) -> bool:
+    """Whether the contact operator of ``model`` is symmetrised by default: the
+    boundary-integral mobility (and its named fidelities) is symmetric only to its
+    discretisation error; RPY and the one-sphere model are exactly symmetric; a
+    user callable is taken as it is."""
+    return isinstance(model, str) and parse_fidelity(model, 1, 0.5)["model"] == "bim"
+
+
 # ----------------------------------------------------------------------------- LCP
 
 
 class _DMD:
-    """``v -> D' M D v`` with a small cache of ``M D v`` for the position update."""
+    """``v -> D' M D v`` (or ``D' (M + M') D v / 2`` with ``symmetrize``) with a small
+    cache of ``M D v`` for the position update."""
 
-    def __init__(self, D: sp.csc_matrix, M: LinearOperator, cache: int = 8):
+    def __init__(self, D: sp.csc_matrix, M: LinearOperator, cache: int = 8,
+                 symmetrize: bool = False):
         self.D, self.Dt, self.M = D, D.T.tocsr(), M
         self._cache: list[tuple[np.ndarray, np.ndarray]] = []
         self._size = cache
+        self.symmetrize = bool(symmetrize)
         self.solves = 0
 
     def velocity(self, v: np.ndarray) -> np.ndarray:
@@ -286,7 +313,13 @@ class _DMD:
         return u.copy()
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
-        return self.Dt @ self.velocity(v)
+        if not self.symmetrize:
+            return self.Dt @ self.velocity(v)
+        v = np.asarray(v, dtype=np.float64).reshape(-1)
+        if not np.any(v):
+            return np.zeros(self.D.shape[1])
+        self.solves += 1                                  # the adjoint solve
+        return _symmetrized(self.M, self.D, self.Dt, v, forward=self.velocity(v))
 
     def operator(self) -> LinearOperator:
         n = self.D.shape[1]
@@ -322,7 +355,8 @@ class ContactProblem:
     U_nc : ndarray, shape (6M,)
         ``M [F_ext; T_ext]``: velocities without contact forces.
     lcp : LCP
-        ``A = D' M D`` (counted, matrix-free), ``b = (Phi + dt D' U_nc) / dt``,
+        ``A = D' M D`` (counted, matrix-free; symmetrised for the boundary-integral
+        model, see :func:`contact_lcp`), ``b = (Phi - s + dt D' U_nc) / dt``,
         low-fidelity operators with per-instance costs.
     setup_solves : int
         Mobility solves spent building the problem outside the LCP's counters
@@ -371,7 +405,8 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
                           low: Union[Sequence[str], Mapping[str, MobilityModel]] = (),
                           x0: Optional[np.ndarray] = None, name: str = "contact",
                           meta: Optional[dict] = None,
-                          separation: float = 0.0) -> ContactProblem:
+                          separation: float = 0.0,
+                          symmetrize: Optional[bool] = None) -> ContactProblem:
     """Everything one forward Euler step needs: see :func:`contact_lcp` for the parameters.
 
     Returns
@@ -397,16 +432,21 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         raise ValueError(f"separation = {separation} must be a finite number >= 0 (the "
                          "minimum gap the LCP keeps)")
     b = (contacts.gaps - separation) / dt + contacts.D.T @ U_nc
-    dmd = _DMD(contacts.D, mob)
+    sym = needs_symmetrizing(model) if symmetrize is None else bool(symmetrize)
+    dmd = _DMD(contacts.D, mob, symmetrize=sym)
     lows = _low_models(low, p, eps_gmres)
     high = Operator(dmd.operator(), name="high")
     low_ops = {}
+    Dt = contacts.D.T.tocsr()
     for key, spec in lows.items():
         lm = resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)
-        Dt = contacts.D.T.tocsr()
-        low_ops[key] = Operator(LinearOperator(
-            (contacts.n, contacts.n), dtype=np.float64,
-            matvec=lambda v, lm=lm, Dt=Dt, D=contacts.D: Dt @ _apply(lm, D @ v)), name=key)
+        lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
+        if lsym:
+            mv = (lambda v, lm=lm: _symmetrized(lm, contacts.D, Dt, v))
+        else:
+            mv = (lambda v, lm=lm: Dt @ _apply(lm, contacts.D @ v))
+        low_ops[key] = Operator(LinearOperator((contacts.n, contacts.n), dtype=np.float64,
+                                               matvec=mv), name=key)
     if low_ops and contacts.n:
         # the paper recomputes the cost ratio at every time step: time one product each
         high = Operator(high, cost=measure_cost(high), name="high")
@@ -416,7 +456,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
     info.update(M=M, n=contacts.n, dt=dt, delta=float(delta), separation=separation, mu=mu,
                 model=model if isinstance(model, str) else getattr(model, "__name__", "custom"),
                 p=int(p), eps_gmres=float(eps_gmres),
-                symmetric=model in ("rpy", "self"),
+                symmetric=sym or model in ("rpy", "self"), symmetrized=sym,
                 min_gap=float(contacts.gaps.min()) if contacts.n else None)
     if x0 is not None:
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)
@@ -446,7 +486,8 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
                 model: MobilityModel = "rpy", p: int = 8, eps_gmres: float = 1e-8,
                 mu: float = 1.0, low: Union[Sequence[str], Mapping[str, MobilityModel]] = (),
                 x0: Optional[np.ndarray] = None, name: str = "contact",
-                meta: Optional[dict] = None, separation: float = 0.0) -> LCP:
+                meta: Optional[dict] = None, separation: float = 0.0,
+                symmetrize: Optional[bool] = None) -> LCP:
     """The collision-resolution LCP of one forward Euler step (eq. defAandb).
 
     Parameters
@@ -482,6 +523,13 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
         Minimum gap to keep (``>= 0``, normally below ``delta``): the gap function
         is ``Phi - separation``, so a solved step leaves every candidate pair
         at least ``separation`` apart to first order (default 0).
+    symmetrize : bool, optional
+        Use ``A = D' (M + M') D / 2``, symmetrised explicitly with the adjoint
+        mobility solve (``M.rmatvec``): every MVP then costs two mobility solves,
+        and the position update still uses ``M D x``.  Default: on for the
+        boundary-integral model and its fidelities (symmetric only to the
+        discretisation error, about 1e-3 near contact at p = 6; docs/mobility.md),
+        off for RPY and ``self`` (exactly symmetric) and for user callables.
 
     Returns
     -------
@@ -498,4 +546,4 @@ def contact_lcp(centers, radii, F_ext=None, T_ext=None, dt: float = 0.1, delta: 
     (1, 1.0)
     """
     return build_contact_problem(centers, radii, F_ext, T_ext, dt, delta, model, p, eps_gmres,
-                                 mu, low, x0, name, meta, separation).lcp
+                                 mu, low, x0, name, meta, separation, symmetrize).lcp

@@ -95,10 +95,14 @@ class LatticeParams:
         Desired candidate pairs per sphere at the start (paper: 1/2).
     separation : float
         Minimum gap the LCP keeps between spheres, in length units: the gap
-        function is ``Phi - separation`` (default 0.01, a hundredth of the
-        default radius), so that a correct solve never makes spheres touch and
-        the boundary-integral model (which refuses overlapping spheres) can be
-        evaluated at every step.
+        function is ``Phi - separation`` (default 0.1, a tenth of the default
+        radius), so that a correct solve never makes spheres touch, the
+        boundary-integral model (which refuses overlapping spheres) can be
+        evaluated at every step, and the active contacts sit where that model
+        still means something: at gap 0.1a the p = 8 squeeze mobility of two
+        spheres is within 7% of the exact series, at 0.01a its relative error is
+        about 3 (docs/mobility.md; measured with
+        ``benchmarks/mobility_accuracy.py``).
     """
 
     m: int = 3
@@ -117,7 +121,7 @@ class LatticeParams:
     spacing: float = 3.0
     jitter: float = 0.5
     target: float = 0.5
-    separation: float = 0.01
+    separation: float = 0.1
 
     def __post_init__(self) -> None:
         def bad(name, why):
@@ -350,14 +354,18 @@ class LatticeScene:
         """The previous step's forces carried to ``problem``'s contacts by pair identity."""
         return problem.contacts.carry(self._prev_pairs, self._prev_x)
 
-    def build(self, warm_start: bool = True) -> ContactProblem:
-        """The current step's contact problem (contacts, mobility, ``U_nc``, LCP)."""
+    def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None) -> ContactProblem:
+        """The current step's contact problem (contacts, mobility, ``U_nc``, LCP).
+
+        ``symmetrize`` is passed to :func:`.contacts.build_contact_problem` (default:
+        the boundary-integral operators are symmetrised with the adjoint solve)."""
         P = self.params
         F, T = self.loads()
         problem = build_contact_problem(
             self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, separation=P.separation,
             model=P.model, p=P.p,
-            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low, name=f"lattice-m{P.m}-step{self.step_index}",
+            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low, symmetrize=symmetrize,
+            name=f"lattice-m{P.m}-step{self.step_index}",
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
         if warm_start and problem.contacts.n:
             x0 = self.warm_start(problem)
