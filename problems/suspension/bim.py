@@ -49,9 +49,12 @@ GMRES is relaxed (inexact Krylov): once the residual estimate has dropped to
 ``10^-k``, products use the split for ``quad_tol * 10^k`` (at most 1e-4),
 because later Krylov directions enter the solution with weights of the size of
 the residual; residuals at restarts and the reported final residual use full
-accuracy.  Dense per-sphere products and GMRES vector work run in compiled loops
-rather than threaded BLAS, whose threads would compete with the compiled parallel
-kernels on few cores.
+accuracy.  GMRES is scipy's (``krylov="scipy"``, default: :func:`scipy_gmres_solve`
+drives ``scipy.sparse.linalg.gmres`` one restart cycle at a time so that it knows the
+rung of every product) or a compiled one (``krylov="compiled"``, :func:`gmres_solve`);
+both take the same steps.  Dense per-sphere products run in compiled loops and scipy's
+vector work with BLAS limited to one thread (threadpoolctl): threaded BLAS would compete
+with the compiled parallel kernels on few cores (up to 100x slower on 2 cores).
 
 The transpose of the discrete mobility (``rmatvec``; the discrete map is symmetric only
 to about 1e-3 near contact, and the contact layer symmetrises with it) is
@@ -76,6 +79,8 @@ from collections import deque
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
+from scipy.sparse.linalg import gmres as _scipy_gmres
+from threadpoolctl import ThreadpoolController
 
 from .geometry import check_configuration, check_no_overlap, check_viscosity
 from .kernels import (
@@ -115,7 +120,8 @@ from .sphere_vsh import (
     vsh_basis,
 )
 
-__all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning", "far_ratio", "gmres_solve"]
+__all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning", "far_ratio", "gmres_solve",
+           "scipy_gmres_solve", "KRYLOV_METHODS"]
 
 _PARALLEL_WORK = 4e6
 """Products with fewer multiply-adds than this run in the serial build of a kernel."""
@@ -266,6 +272,111 @@ def gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int
                 return x, its, res
 
 
+KRYLOV_METHODS = ("scipy", "compiled")
+"""Allowed values of ``BimMobility(krylov=...)``."""
+
+_BLAS_LIMITER: list = []
+"""Lazily built ``threadpoolctl.ThreadpoolController`` (scanning the loaded libraries
+once instead of at every solve)."""
+
+
+def _single_thread_blas():
+    """Context manager limiting BLAS to one thread (threadpoolctl), so that numpy's vector
+    work inside scipy's GMRES does not compete with the parallel compiled kernels."""
+    if not _BLAS_LIMITER:
+        _BLAS_LIMITER.append(ThreadpoolController())
+    return _BLAS_LIMITER[0].limit(limits=1, user_api="blas")
+
+
+def scipy_gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int,
+                      maxiter: int, rungs: int = 1, step: float = 100.0,
+                      relax: float = 1.0) -> tuple[np.ndarray, int, float]:
+    """Restarted, optionally relaxed GMRES for ``A x = b`` by ``scipy.sparse.linalg.gmres``.
+
+    Same contract as :func:`gmres_solve` (``matvec(x, k)`` applies A at accuracy rung k,
+    same relaxation rule, same stopping test and return values), with scipy doing the
+    Arnoldi process and the least-squares updates.  scipy is called once per restart
+    cycle (``maxiter=1``, ``restart`` capped by the iterations left, ``rtol``, ``atol=0``,
+    ``x0`` = the current iterate, first the warm start), so that:
+
+    * the rung of every product is known before it is made: a ``callback_type="pr_norm"``
+      callback records the residual estimate after each inner iteration and the next
+      product uses the rung that estimate allows; when the callback shows that the cycle
+      ends (estimate at most ``rtol`` or ``restart`` inner iterations) the next product,
+      scipy's residual ``b - A x`` at the end of the cycle, is made at rung 0;
+    * every convergence decision here uses a full-accuracy residual: the last product of
+      the cycle is reused when it was a rung-0 product of the returned iterate (the
+      usual case), otherwise (e.g. an unforeseen Arnoldi breakdown) ``b - A x`` is
+      recomputed at rung 0.  The rung-0 product at the start of the next scipy call is
+      served from the same cache, so a restart costs no extra product.
+
+    The total number of inner iterations never exceeds ``maxiter``.  Vector work runs in
+    numpy with BLAS limited to one thread (threadpoolctl).
+
+    Returns
+    -------
+    x, iterations, relative residual (full accuracy)
+    """
+    b = np.asarray(b, dtype=float)
+    n = b.size
+    nb = float(np.linalg.norm(b))
+    x = np.array(x0, dtype=float)
+    if nb == 0.0:
+        return np.zeros(n), 0, 0.0
+    m = max(1, min(int(restart), n))
+    # rung: accuracy of the next product; then: rung after it (set when that product is
+    # scipy's initial residual b - A x0); its / cycle: inner iterations, total and in cycle
+    state = {"rung": 0, "then": None, "its": 0, "cycle": 0, "restart": m}
+    cache: dict = {}                        # last product: input copy, rung, output
+
+    def product(v: np.ndarray) -> np.ndarray:
+        v = np.asarray(v, dtype=float).reshape(-1)
+        rung = state["rung"]
+        if state["then"] is not None:
+            state["rung"], state["then"] = state["then"], None
+        if rung == 0 and cache.get("rung") == 0 and np.array_equal(cache["x"], v):
+            return cache["y"].copy()
+        y = np.asarray(matvec(v, rung), dtype=float).reshape(-1)
+        cache.update(x=v.copy(), rung=rung, y=y)
+        return y.copy()
+
+    def rung_for(est: float) -> int:
+        k = 0
+        while k + 1 < rungs and est * step ** (k + 1) <= relax:
+            k += 1
+        return k
+
+    def callback(pr_norm: float) -> None:
+        state["its"] += 1
+        state["cycle"] += 1
+        ends = pr_norm <= rtol * (1 + 1e-8) or state["cycle"] >= state["restart"]
+        state["rung"] = 0 if ends else rung_for(float(pr_norm))
+
+    def residual(z: np.ndarray) -> float:
+        state["rung"], state["then"] = 0, None
+        return float(np.linalg.norm(b - product(z))) / nb
+
+    op = LinearOperator((n, n), matvec=product, dtype=np.float64)
+    with _single_thread_blas():
+        res = residual(x)
+        while res > rtol and state["its"] < maxiter:
+            state["cycle"] = 0
+            state["restart"] = min(m, maxiter - state["its"])
+            if x.any():                     # scipy first forms b - A x0: rung 0 (cached)
+                state["rung"], state["then"] = 0, rung_for(res)
+            else:                           # scipy starts from r = b, no product
+                state["rung"], state["then"] = rung_for(res), None
+            its_before = state["its"]
+            x, _ = _scipy_gmres(op, b, x0=x.copy(), rtol=rtol, atol=0.0,
+                                restart=state["restart"], maxiter=1, callback=callback,
+                                callback_type="pr_norm")
+            x = np.asarray(x, dtype=float).reshape(-1)
+            res = residual(x)
+            if state["its"] == its_before:  # scipy took no step: stop rather than loop
+                break
+    return x, state["its"], res
+
+
 def _fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.ndarray,
                           eps: float) -> np.ndarray:
     """Transpose of :func:`fmm.fmm_traction` (points are sources and targets alike).
@@ -333,6 +444,13 @@ class BimMobility(LinearOperator):
         twice the source radius is an expansion pair (projected) at any ``eps_gmres``,
         so the discretisation does not depend on the tolerance; pairs farther apart
         are sampled at the nodes.
+    krylov : {"scipy", "compiled"}
+        GMRES implementation of the forward and adjoint solves: ``scipy.sparse.linalg.gmres``
+        driven one restart cycle at a time with BLAS limited to one thread
+        (:func:`scipy_gmres_solve`), or the compiled :func:`gmres_solve`.  Both use the
+        one-body right preconditioner, the warm start, ``eps_gmres``, restart 60,
+        ``maxiter`` inner iterations in total and the same relaxed accuracy (full-accuracy
+        residuals at restarts and at the end), and report non-convergence the same way.
 
     Attributes
     ----------
@@ -360,7 +478,8 @@ class BimMobility(LinearOperator):
                  mu: float = 1.0, on_failure: str = "warn", recycle: int = 8,
                  maxiter: int = 500, near_block_mb: float = 2048.0,
                  quad_tol: float | None = None, far: str = "direct",
-                 fmm_min_points: int = 0, near_upsample: float = _NEAR_UPSAMPLE) -> None:
+                 fmm_min_points: int = 0, near_upsample: float = _NEAR_UPSAMPLE,
+                 krylov: str = "scipy") -> None:
         c, r = check_configuration(centers, radii)
         self.p = _check_p(p)
         self.eps_gmres = _check_eps(eps_gmres)
@@ -371,6 +490,10 @@ class BimMobility(LinearOperator):
         if far not in ("direct", "fmm"):
             raise ValueError(f"far = {far!r}; use 'direct' (compiled direct sums) or 'fmm' "
                              "(fmm3dpy.stfmm3d, install the extra 'fmm')")
+        if not isinstance(krylov, str) or krylov not in KRYLOV_METHODS:
+            raise ValueError(f"krylov = {krylov!r}; use 'scipy' (scipy.sparse.linalg.gmres) or "
+                             "'compiled' (the compiled restarted GMRES of this module)")
+        self.krylov = krylov
         self.quad_tol = default_quad_tol(self.eps_gmres) if quad_tol is None else float(quad_tol)
         if not (np.isfinite(self.quad_tol) and 0 < self.quad_tol < 1):
             raise ValueError(f"quad_tol = {quad_tol!r} must be a number in (0, 1), e.g. 1e-10 "
@@ -712,9 +835,10 @@ class BimMobility(LinearOperator):
         sigma0 = self._warm_start(b)
         y0 = self._unprecondition(sigma0)
         restart = max(1, min(n, 60, self.maxiter))
-        y, its, res_g = gmres_solve(lambda v, k: self._apply_bie(self._precondition(v), k), b, y0,
-                                    self.eps_gmres, restart, self.maxiter,
-                                    rungs=len(self._dir_ranges), step=_RELAX_STEP)
+        solver = scipy_gmres_solve if self.krylov == "scipy" else gmres_solve
+        y, its, res_g = solver(lambda v, k: self._apply_bie(self._precondition(v), k), b, y0,
+                               self.eps_gmres, restart, self.maxiter,
+                               rungs=len(self._dir_ranges), step=_RELAX_STEP)
         sigma = self._precondition(y)
         res = float(np.linalg.norm(b - self._apply_bie(sigma)) / nb)
         self.gmres_iterations.append(its)
@@ -942,8 +1066,9 @@ class BimMobility(LinearOperator):
         else:
             w0 = z.copy()
         restart = max(1, min(z.size, 60, self.maxiter))
-        w, its, res_g = gmres_solve(lambda v, k: self._adjoint_operator(v), z, w0,
-                                    self.eps_gmres, restart, self.maxiter, rungs=1)
+        solver = scipy_gmres_solve if self.krylov == "scipy" else gmres_solve
+        w, its, res_g = solver(lambda v, k: self._adjoint_operator(v), z, w0,
+                               self.eps_gmres, restart, self.maxiter, rungs=1)
         res = float(np.linalg.norm(z - self._adjoint_operator(w)) / nz)
         self.adjoint_iterations.append(its)
         self.adjoint_residuals.append(res)
@@ -994,7 +1119,7 @@ class BimMobility(LinearOperator):
 
 def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
                  mu: float = 1.0, far: str = "direct",
-                 quad_tol: float | None = None) -> BimMobility:
+                 quad_tol: float | None = None, krylov: str = "scipy") -> BimMobility:
     """Boundary-integral mobility operator of rigid spheres.
 
     Parameters
@@ -1011,6 +1136,8 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         Far-field engine (see :class:`BimMobility`); "fmm" needs fmm3dpy.
     quad_tol : float, optional
         Quadrature accuracy between spheres (default ``eps_gmres / 100``).
+    krylov : {"scipy", "compiled"}
+        GMRES implementation (see :class:`BimMobility`).
 
     Returns
     -------
@@ -1020,4 +1147,4 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         the iterations of every product.
     """
     return BimMobility(centers, radii, p=p, eps_gmres=eps_gmres, mu=mu, far=far,
-                       quad_tol=quad_tol)
+                       quad_tol=quad_tol, krylov=krylov)
