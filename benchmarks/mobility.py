@@ -86,6 +86,7 @@ def main() -> None:
                     prof.disable()
                     print(f"\n### profile M={M} p={p} eps={eps:g}\n")
                     pstats.Stats(prof).sort_stats("cumulative").print_stats(12)
+                    pstats.Stats(prof).sort_stats("tottime").print_stats(8)
                     continue
                 t, it = time_products(op, M, args.repeat)
                 print(f"| {M} | bim | {p} | {eps:g} | {setup:.2f} | {t:.3f} | {it:.0f} | "
