@@ -80,6 +80,22 @@ def _get(I: np.ndarray, l: int, m: int) -> complex:
 
 
 @njit(cache=True, fastmath=False)
+def _derivatives(I: np.ndarray, n: int, m: int) -> tuple:
+    """Gradient ``(g0, g1, g2)`` and packed Hessian ``(xx, yy, zz, xy, xz, yz)`` of the
+    solid harmonic ``I_n^m`` from the table ``I`` (degrees up to n + 2)."""
+    ip = _get(I, n + 1, m + 1)
+    im = _get(I, n + 1, m - 1)
+    a2 = _get(I, n + 2, m + 2)
+    a1 = _get(I, n + 2, m + 1)
+    a0 = I[n + 2, m]
+    b1 = _get(I, n + 2, m - 1)
+    b2 = _get(I, n + 2, m - 2)
+    return (0.5 * (ip - im), -0.5j * (ip + im), -I[n + 1, m],
+            0.25 * (a2 - 2.0 * a0 + b2), -0.25 * (a2 + 2.0 * a0 + b2), a0,
+            -0.25j * (a2 - b2), 0.5 * (b1 - a1), 0.5j * (a1 + b1))
+
+
+@njit(cache=True, fastmath=False)
 def vsh_at(xh: np.ndarray, p: int, knm: np.ndarray, Y: np.ndarray, V: np.ndarray) -> None:
     """Orthonormal ``Y_n^m`` and ``V_n^m = grad(r^(-n-1) Y_n^m)`` at a unit vector.
 
@@ -169,22 +185,7 @@ def unit_field(xi: np.ndarray, D: np.ndarray, p: int, I: np.ndarray,
             dA = D[2, n, m]
             dB = D[3, n, m]
             dP = D[4, n, m]
-            ip = _get(I, n + 1, m + 1)
-            im = _get(I, n + 1, m - 1)
-            g0 = 0.5 * (ip - im)
-            g1 = -0.5j * (ip + im)
-            g2 = -I[n + 1, m]
-            a2 = _get(I, n + 2, m + 2)
-            a1 = _get(I, n + 2, m + 1)
-            a0 = I[n + 2, m]
-            b1 = _get(I, n + 2, m - 1)
-            b2 = _get(I, n + 2, m - 2)
-            hxx = 0.25 * (a2 - 2.0 * a0 + b2)
-            hyy = -0.25 * (a2 + 2.0 * a0 + b2)
-            hzz = a0
-            hxy = -0.25j * (a2 - b2)
-            hxz = 0.5 * (b1 - a1)
-            hyz = 0.5j * (a1 + b1)
+            g0, g1, g2, hxx, hyy, hzz, hxy, hxz, hyz = _derivatives(I, n, m)
             gF[0] += dF * g0
             gF[1] += dF * g1
             gF[2] += dF * g2
@@ -394,24 +395,10 @@ def _response_at(x: np.ndarray, nv: np.ndarray, p: int, fac: np.ndarray,
     Gc = np.empty((3, 3), dtype=np.complex128)
     for n in range(p + 1):
         for m in range(n + 1):
-            ip = _get(I, n + 1, m + 1)
-            im = _get(I, n + 1, m - 1)
-            g[0] = 0.5 * (ip - im)
-            g[1] = -0.5j * (ip + im)
-            g[2] = -I[n + 1, m]
-            a2 = _get(I, n + 2, m + 2)
-            a1 = _get(I, n + 2, m + 1)
-            a0 = I[n + 2, m]
-            b1 = _get(I, n + 2, m - 1)
-            b2 = _get(I, n + 2, m - 2)
-            H[0, 0] = 0.25 * (a2 - 2.0 * a0 + b2)
-            H[1, 1] = -0.25 * (a2 + 2.0 * a0 + b2)
-            H[2, 2] = a0
-            H[0, 1] = -0.25j * (a2 - b2)
+            g[0], g[1], g[2], H[0, 0], H[1, 1], H[2, 2], H[0, 1], H[0, 2], H[1, 2] = \
+                _derivatives(I, n, m)
             H[1, 0] = H[0, 1]
-            H[0, 2] = 0.5 * (b1 - a1)
             H[2, 0] = H[0, 2]
-            H[1, 2] = 0.5j * (a1 + b1)
             H[2, 1] = H[1, 2]
             v = I[n, m]
             gn = g[0] * nv[0] + g[1] * nv[1] + g[2] * nv[2]
@@ -740,22 +727,7 @@ def unit_field_adjoint(xi: np.ndarray, p: int, I: np.ndarray, wu: np.ndarray, wG
         h[5] = H[1, 2] + H[2, 1]
     for n in range(p + 1):
         for m in range(n + 1):
-            ip = _get(I, n + 1, m + 1)
-            im = _get(I, n + 1, m - 1)
-            g0 = 0.5 * (ip - im)
-            g1 = -0.5j * (ip + im)
-            g2 = -I[n + 1, m]
-            a2 = _get(I, n + 2, m + 2)
-            a1 = _get(I, n + 2, m + 1)
-            a0 = I[n + 2, m]
-            b1 = _get(I, n + 2, m - 1)
-            b2 = _get(I, n + 2, m - 2)
-            hxx = 0.25 * (a2 - 2.0 * a0 + b2)
-            hyy = -0.25 * (a2 + 2.0 * a0 + b2)
-            hzz = a0
-            hxy = -0.25j * (a2 - b2)
-            hxz = 0.5 * (b1 - a1)
-            hyz = 0.5j * (a1 + b1)
+            g0, g1, g2, hxx, hyy, hzz, hxy, hxz, hyz = _derivatives(I, n, m)
             v = I[n, m]
             Dbar[0, n, m] += (Fb[0] * g0 + Fb[1] * g1 + Fb[2] * g2
                               + hF[0] * hxx + hF[1] * hyy + hF[2] * hzz
