@@ -763,7 +763,7 @@ class BimMobility(LinearOperator):
                     fn = (direct_traction_ranges if work > _PARALLEL_WORK
                           else direct_traction_ranges_serial)
                     fn(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
-                                           ptr, start, stop, *self._src_xyz, *f, trac)
+                       ptr, start, stop, *self._src_xyz, *f, trac, False)
                 if self.far == "fmm":
                     from .fmm import fmm_traction
                     b0 = self._lvl_base[self._native]
@@ -773,7 +773,7 @@ class BimMobility(LinearOperator):
                     ptr, start, stop = self._fmm_sub
                     sub = np.zeros((M * N, 3))
                     direct_traction_skip(self._tgt_pts, self._tgt_nrm, self._tgt_sphere,
-                                         ptr, start, stop, *self._src_xyz, *f, sub)
+                                         ptr, start, stop, *self._src_xyz, *f, sub, True)
                     trac -= sub
             out += trac.reshape(M, 3 * N)
             if self.n_block_pairs:

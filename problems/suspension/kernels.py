@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["solid_harmonics", "vsh_at", "unit_field", "traction_expansion",
-           "center_readout", "direct_traction", "direct_traction_ranges",
+           "center_readout", "direct_traction_ranges",
            "direct_traction_skip", "rows_times", "apply_blocks", "synthesize_forces",
            "orthogonalize", "combine_rows", "rows_times_serial", "apply_blocks_serial",
            "synthesize_forces_serial", "direct_traction_ranges_serial", "traction_response_batch",
@@ -335,51 +335,6 @@ def center_readout(centers: np.ndarray, radii: np.ndarray, D: np.ndarray, p: int
             out[i, c] += acc[c]
 
 
-@njit(parallel=True, fastmath=False, cache=True)
-def direct_traction(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
-                    far_ptr: np.ndarray, far_idx: np.ndarray, src_pts: np.ndarray,
-                    src_f: np.ndarray, out: np.ndarray) -> None:
-    """Add to ``out[t]`` the traction of the single layers of the spheres
-    ``far_idx[far_ptr[i]:far_ptr[i+1]]`` by direct smooth quadrature.
-
-    ``src_pts[j, k]`` are the quadrature nodes of sphere j and ``src_f[j, k]`` the
-    density times the quadrature weight (a point force).  The stress of a point
-    force f at distance r = x - y is -(3 / 4 pi) r (r . f) r^T / |r|^5.
-    """
-    T = tgt_pts.shape[0]
-    nsrc = src_pts.shape[1]
-    c0 = -3.0 / _FOUR_PI
-    for t in prange(T):
-        i = tgt_sphere[t]
-        x0 = tgt_pts[t, 0]
-        x1 = tgt_pts[t, 1]
-        x2 = tgt_pts[t, 2]
-        n0 = tgt_nrm[t, 0]
-        n1 = tgt_nrm[t, 1]
-        n2 = tgt_nrm[t, 2]
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        for k in range(far_ptr[i], far_ptr[i + 1]):
-            j = far_idx[k]
-            for s in range(nsrc):
-                r0 = x0 - src_pts[j, s, 0]
-                r1 = x1 - src_pts[j, s, 1]
-                r2 = x2 - src_pts[j, s, 2]
-                rr = r0 * r0 + r1 * r1 + r2 * r2
-                inv = 1.0 / np.sqrt(rr)
-                inv5 = inv * inv * inv * inv * inv
-                rf = r0 * src_f[j, s, 0] + r1 * src_f[j, s, 1] + r2 * src_f[j, s, 2]
-                rn = r0 * n0 + r1 * n1 + r2 * n2
-                w = c0 * rf * rn * inv5
-                f0 += w * r0
-                f1 += w * r1
-                f2 += w * r2
-        out[t, 0] += f0
-        out[t, 1] += f1
-        out[t, 2] += f2
-
-
 @njit(cache=True, fastmath=False)
 def _response_at(x: np.ndarray, nv: np.ndarray, p: int, fac: np.ndarray,
                  out_t: np.ndarray) -> None:
@@ -470,7 +425,7 @@ def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_s
                            pair_ptr: np.ndarray, src_start: np.ndarray, src_stop: np.ndarray,
                            src_x: np.ndarray, src_y: np.ndarray, src_z: np.ndarray,
                            src_fx: np.ndarray, src_fy: np.ndarray, src_fz: np.ndarray,
-                           out: np.ndarray) -> None:
+                           out: np.ndarray, skip: bool) -> None:
     """Add to ``out[t]`` the traction of point forces by direct summation (vectorised).
 
     Target ``t`` on sphere ``i = tgt_sphere[t]`` receives the point forces
@@ -479,7 +434,9 @@ def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_s
     interacting sphere (its quadrature nodes at the grid order chosen for the
     pair, density times weight already folded in).  Sources are stored as
     separate coordinate arrays so that the inner loop is a SIMD reduction.
-    Sources must not coincide with targets (use :func:`direct_traction_skip`).
+    Sources must not coincide with targets, unless ``skip`` (the build
+    :func:`direct_traction_skip`, without fastmath): then coinciding sources are left
+    out, the convention of point-source FMMs whose near part it removes.
     """
     T = tgt_pts.shape[0]
     c0 = -3.0 / _FOUR_PI
@@ -500,47 +457,7 @@ def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_s
                 r1 = x1 - src_y[s]
                 r2 = x2 - src_z[s]
                 rr = r0 * r0 + r1 * r1 + r2 * r2
-                inv = 1.0 / np.sqrt(rr)
-                inv2 = inv * inv
-                rf = r0 * src_fx[s] + r1 * src_fy[s] + r2 * src_fz[s]
-                rn = r0 * n0 + r1 * n1 + r2 * n2
-                w = c0 * rf * rn * inv2 * inv2 * inv
-                f0 += w * r0
-                f1 += w * r1
-                f2 += w * r2
-        out[t, 0] += f0
-        out[t, 1] += f1
-        out[t, 2] += f2
-
-
-@njit(parallel=True, fastmath=False, cache=True)
-def direct_traction_skip(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_sphere: np.ndarray,
-                         pair_ptr: np.ndarray, src_start: np.ndarray, src_stop: np.ndarray,
-                         src_x: np.ndarray, src_y: np.ndarray, src_z: np.ndarray,
-                         src_fx: np.ndarray, src_fy: np.ndarray, src_fz: np.ndarray,
-                         out: np.ndarray) -> None:
-    """As :func:`direct_traction_ranges` but skipping sources that coincide with the
-    target (the convention of point-source FMMs, whose near part it removes)."""
-    T = tgt_pts.shape[0]
-    c0 = -3.0 / _FOUR_PI
-    for t in prange(T):
-        i = tgt_sphere[t]
-        x0 = tgt_pts[t, 0]
-        x1 = tgt_pts[t, 1]
-        x2 = tgt_pts[t, 2]
-        n0 = tgt_nrm[t, 0]
-        n1 = tgt_nrm[t, 1]
-        n2 = tgt_nrm[t, 2]
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        for k in range(pair_ptr[i], pair_ptr[i + 1]):
-            for s in range(src_start[k], src_stop[k]):
-                r0 = x0 - src_x[s]
-                r1 = x1 - src_y[s]
-                r2 = x2 - src_z[s]
-                rr = r0 * r0 + r1 * r1 + r2 * r2
-                if rr == 0.0:
+                if skip and rr == 0.0:
                     continue
                 inv = 1.0 / np.sqrt(rr)
                 inv2 = inv * inv
@@ -661,6 +578,7 @@ synthesize_forces = njit(parallel=True, fastmath=True, cache=True)(_synthesize_f
 synthesize_forces_serial = njit(fastmath=True, cache=True)(_synthesize_forces_impl)
 direct_traction_ranges = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_ranges_impl)
 direct_traction_ranges_serial = njit(fastmath=True, cache=True)(_direct_traction_ranges_impl)
+direct_traction_skip = njit(parallel=True, fastmath=False, cache=True)(_direct_traction_ranges_impl)
 
 
 # ---- transposed (adjoint) kernels ------------------------------------------------------------

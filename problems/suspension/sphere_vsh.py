@@ -490,7 +490,8 @@ def quadrature_errors(p: int, q: int, rho: np.ndarray, seed: int = 1) -> np.ndar
     dr = np.zeros_like(ex)
     direct_traction_ranges(tgt, nrm, which, ptr, start, start + Nq,
                            *(np.ascontiguousarray(nodes[:, c]) for c in range(3)),
-                           *(np.ascontiguousarray(fq.reshape(-1, 3)[:, c]) for c in range(3)), dr)
+                           *(np.ascontiguousarray(fq.reshape(-1, 3)[:, c]) for c in range(3)), dr,
+                           False)
     return np.abs(dr - ex).reshape(rho.size, -1).max(axis=1)
 
 
