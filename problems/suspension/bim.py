@@ -216,7 +216,8 @@ def gmres_solve(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int
 
     Returns
     -------
-    x, iterations, relative residual estimate
+    x, iterations, relative residual ``||b - A x|| / ||b||`` of the returned x, measured
+    with a full-accuracy (rung 0) product
     """
     nb = float(np.linalg.norm(b))
     x = np.array(x0, dtype=float)
@@ -840,18 +841,18 @@ class BimMobility(LinearOperator):
                                self.eps_gmres, restart, self.maxiter,
                                rungs=len(self._dir_ranges), step=_RELAX_STEP)
         sigma = self._precondition(y)
-        res = float(np.linalg.norm(b - self._apply_bie(sigma)) / nb)
+        # both GMRES drivers return the full-accuracy residual of y: ||b - A_bie(P y)|| / ||b||
         self.gmres_iterations.append(its)
-        self.residuals.append(res)
-        self._report("BIM GMRES", res_g, res, its)
+        self.residuals.append(res_g)
+        self._report("BIM GMRES", res_g, its)
         if self._history.maxlen:
             self._history.append((sigma, b))
         return sigma
 
-    def _report(self, what: str, res_g: float, res: float, its: int) -> None:
-        """Warn (or raise, ``on_failure="raise"``) when a solve missed ``eps_gmres``: its
-        GMRES estimate ``res_g`` above it, or the re-measured residual ``res`` above 10x."""
-        if res_g <= self.eps_gmres and res <= 10 * self.eps_gmres:
+    def _report(self, what: str, res: float, its: int) -> None:
+        """Warn (or raise, ``on_failure="raise"``) when a solve's full-accuracy relative
+        residual ``res`` missed ``eps_gmres``."""
+        if res <= self.eps_gmres:
             return
         msg = (f"{what} did not converge: relative residual {res:.3g} after {its} "
                f"iterations (eps_gmres = {self.eps_gmres:g}, M = {self.M}, p = {self.p}); "
@@ -1074,10 +1075,9 @@ class BimMobility(LinearOperator):
         solver = scipy_gmres_solve if self.krylov == "scipy" else gmres_solve
         w, its, res_g = solver(lambda v, k: self._adjoint_operator(v), z, w0,
                                self.eps_gmres, restart, self.maxiter, rungs=1)
-        res = float(np.linalg.norm(z - self._adjoint_operator(w)) / nz)
         self.adjoint_iterations.append(its)
-        self.adjoint_residuals.append(res)
-        self._report("BIM adjoint GMRES", res_g, res, its)
+        self.adjoint_residuals.append(res_g)              # full accuracy, as above
+        self._report("BIM adjoint GMRES", res_g, its)
         if self._adj_history.maxlen:
             self._adj_history.append((w, z))
         return w
