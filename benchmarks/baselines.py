@@ -25,7 +25,7 @@ from common import HARD, instances, progress, run_set, solver_names
 from lcpbench.problems.random import with_perturbed_lows
 
 import lcpbench
-from lcpbench.registry import solvers
+from lcpbench.core.registry import solvers
 
 MULTI_SPECS = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}
 

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 
 import lcpbench
-from lcpbench.registry import get_problem, make_params, parse_spec, solvers
+from lcpbench.core.registry import get_problem, make_params, parse_spec, solvers
 
 HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
         "bb-cycle"]

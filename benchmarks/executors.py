@@ -22,9 +22,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from lcpbench.runner import execute, plan
-from lcpbench.store import RunStore
-from lcpbench.sweep import Sweep
+from lcpbench.run.runner import execute, plan
+from lcpbench.run.store import RunStore
+from lcpbench.run.sweep import Sweep
 
 DROP = ["time_s", "mvp_time_s", "started", "finished", "info", "message"]
 

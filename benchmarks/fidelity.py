@@ -24,7 +24,7 @@ from lcpbench.problems.stored import (
     shipped_sets,
 )
 
-from lcpbench.fidelity import fidelity_table
+from lcpbench.workflows.fidelity import fidelity_table
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -36,7 +36,7 @@ import numpy as np
 import lcpbench
 from lcpbench.problems.hard import planted_b, random_spd_matrix
 from lcpbench.problems.random import with_perturbed_lows
-from lcpbench.registry import solvers
+from lcpbench.core.registry import solvers
 
 KINDS = ("spd", "singular-psd", "degenerate", "bad-scale")
 MULTI = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}

@@ -9,16 +9,16 @@ with ``A`` is counted. Quick start::
     print(res.summary())
 """
 
-from .api import DEFAULT_SOLVER, run_solver, solve
-from .context import Budget, Monitor, SolverContext, StopSolver
-from .lcp import LCP
-from .operator import BudgetExhausted, Operator
-from .reference import Reference, reference
-from .registry import get_problem, get_solver, parse_spec, register_problem, register_solver
-from .registry import problems as list_problems
-from .registry import solvers as list_solvers
-from .residuals import StopRule
-from .result import SolveResult, Status
+from .core.api import DEFAULT_SOLVER, run_solver, solve
+from .core.context import Budget, Monitor, SolverContext, StopSolver
+from .core.lcp import LCP
+from .core.operator import BudgetExhausted, Operator
+from .core.reference import Reference, reference
+from .core.registry import get_problem, get_solver, parse_spec, register_problem, register_solver
+from .core.registry import problems as list_problems
+from .core.registry import solvers as list_solvers
+from .core.residuals import StopRule
+from .core.result import SolveResult, Status
 
 __version__ = "0.1.0"
 

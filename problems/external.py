@@ -40,7 +40,7 @@ FCLIB local problems (HDF5)
 
 Symmetry policy
     ``lcpbench.LCP`` is symmetric. A matrix whose asymmetry ``max|A - A'| / max|A|``
-    exceeds :data:`lcpbench.lcp.SYMMETRY_RTOL` but not ``symmetrize_rtol`` is replaced by
+    exceeds :data:`lcpbench.core.lcp.SYMMETRY_RTOL` but not ``symmetrize_rtol`` is replaced by
     ``(A + A') / 2`` with a warning that states the asymmetry; above ``symmetrize_rtol``
     the reader raises ``ValueError``. Defaults: 0 for Siconos (its collection holds
     genuinely non-symmetric LCPs: symmetrising them would change the problem), 1e-6 for
@@ -59,7 +59,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lcpbench import LCP, register_problem
-from lcpbench.lcp import SYMMETRY_RTOL
+from lcpbench.core.lcp import SYMMETRY_RTOL
 
 __all__ = ["read_siconos_lcp", "write_siconos_lcp", "read_fclib_local", "write_fclib_local",
            "SiconosFormatError", "SICONOS_STORAGES", "FCLIB_DEFAULT_SYMMETRIZE_RTOL"]

@@ -52,8 +52,8 @@ import h5py
 import numpy as np
 
 from lcpbench import LCP, Operator, Reference, register_problem
-from lcpbench.operator import dense_uncounted
-from lcpbench.ranges import parse_ranges
+from lcpbench.core.operator import dense_uncounted
+from lcpbench.core.ranges import parse_ranges
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "shipped_sets", "parse_instances", "FORMAT", "VERSION",

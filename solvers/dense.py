@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.context import SolverContext
-from lcpbench.result import SolveResult, Status
+from lcpbench.core.context import SolverContext
+from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
 

@@ -23,7 +23,7 @@ Stopping
 scipy's own tests are switched off (``ftol = gtol = 0``) so the lcpbench stop
 rule decides: the iteration callback reports the new iterate with the ``w`` of
 that very point (taken from the cache) to ``ctx.report`` and raises
-:class:`lcpbench.context.StopSolver` when it says stop. When scipy ends by
+:class:`lcpbench.core.context.StopSolver` when it says stop. When scipy ends by
 itself (e.g. ``ABNORMAL_TERMINATION_IN_LNSRCH``: the line search cannot make
 progress at machine precision) the last point is reported and, unless the stop
 rule is met there, the solve ends ``stagnated`` (or ``failed`` for an error
@@ -59,8 +59,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lcpbench import register_solver
-from lcpbench.context import SolverContext, StopSolver
-from lcpbench.result import SolveResult, Status
+from lcpbench.core.context import SolverContext, StopSolver
+from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["LBFGSBParams", "lbfgsb"]
 

@@ -47,7 +47,7 @@ MVPs per Newton iteration
   free trial's ``w = w + tau A dx`` is a recurrence: exact up to rounding, and
   refreshed by the next clipped trial). Before a recurrence ``w`` is allowed
   to claim convergence it is confirmed by one counted product when the
-  rounding drift could explain the claim (:class:`lcpbench.confirm.ConfirmedReport`,
+  rounding drift could explain the claim (:class:`lcpbench.toolkit.confirm.ConfirmedReport`,
   ``info['confirmations']``; found necessary by ``benchmarks/fuzz.py`` on
   badly scaled ``b``).
 * when the Newton direction is not a sufficient descent direction
@@ -81,9 +81,9 @@ import numpy as np
 from scipy.sparse.linalg import LinearOperator, gmres, minres
 
 from lcpbench import register_solver
-from lcpbench.confirm import ConfirmedReport
-from lcpbench.context import SolverContext
-from lcpbench.result import SolveResult, Status
+from lcpbench.toolkit.confirm import ConfirmedReport
+from lcpbench.core.context import SolverContext
+from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["MinMapParams", "minmap_newton"]
 

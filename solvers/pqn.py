@@ -28,9 +28,9 @@ from typing import Optional
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.confirm import ConfirmedReport
-from lcpbench.context import SolverContext
-from lcpbench.result import SolveResult, Status
+from lcpbench.toolkit.confirm import ConfirmedReport
+from lcpbench.core.context import SolverContext
+from lcpbench.core.result import SolveResult, Status
 
 from .pqn_levels import Counters, LevelOptions, Pairs, bi_level, mono_level
 

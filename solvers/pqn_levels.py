@@ -28,10 +28,10 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from lcpbench.prox import weighted_prox
-from lcpbench.quasinewton import DiagonalBFGS, OperatorBFGS
-from lcpbench.residuals import kkt_abs
-from lcpbench.steps import exact_step, feasible_step_bound
+from lcpbench.toolkit.prox import weighted_prox
+from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
+from lcpbench.core.residuals import kkt_abs
+from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
 __all__ = ["Pairs", "LevelOptions", "LevelOutcome", "Counters", "mono_level", "bi_level",
            "pqn_direction"]

@@ -3,7 +3,7 @@
 The symmetric LCP ``0 <= x _|_ A x + b >= 0`` is the KKT system of the QP
 ``min 1/2 x'Ax + b'x  s.t.  x >= 0`` (method paper, section "Collision
 Resolution" -> "The LCP as an Optimization Problem", eq. qp). These solvers hand that QP to an independent dense QP
-code through qpsolvers (:func:`lcpbench.qp.solve_nonneg_qp`) at a tight
+code through qpsolvers (:func:`lcpbench.toolkit.qp.solve_nonneg_qp`) at a tight
 tolerance. They are *ground truth*, not MVP-only methods: they need the
 explicit matrix (``needs_dense=True``, formed once and uncounted by the
 framework) and are registered with ``reference=True`` so that reports keep them
@@ -34,9 +34,9 @@ import dataclasses
 from typing import Callable
 
 from lcpbench import register_solver
-from lcpbench.context import SolverContext
-from lcpbench.qp import solve_and_refine
-from lcpbench.result import SolveResult, Status
+from lcpbench.core.context import SolverContext
+from lcpbench.toolkit.qp import solve_and_refine
+from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["DEFAULT_TOLERANCES", "make_reference_solver"]
 
@@ -53,7 +53,7 @@ _PARAM_DOC = """Parameters of the {name} reference solver.
         reports success). Must be in (0, 1).
     polish : bool
         After the backend returns, try one active-set refinement
-        (:func:`lcpbench.qp.polish_active_set`: solve ``A_FF x_F = -b_F`` on the
+        (:func:`lcpbench.toolkit.qp.polish_active_set`: solve ``A_FF x_F = -b_F`` on the
         support of ``x``), kept only if it is feasible and lowers
         ``||min(x, Ax+b)||`` (default True). Dense algebra, no counted MVP.
     retries : int
@@ -64,7 +64,7 @@ _PARAM_DOC = """Parameters of the {name} reference solver.
         ``eps_abs`` at 1e-10 with entries of b near 1e6). The tolerance that
         succeeded is recorded in ``info["tol_used"]``.
     refine_steps : int
-        Then up to this many correction steps of :func:`lcpbench.qp.refine_active_set`
+        Then up to this many correction steps of :func:`lcpbench.toolkit.qp.refine_active_set`
         (default 3; 0 disables). They rescue singular ``A_FF`` (redundant
         contacts) and tiny negative entries on degenerate indices, where the
         polish above is rejected. Dense algebra, no counted MVP.
@@ -81,7 +81,7 @@ def _validate(self) -> None:
 
 
 def make_reference_solver(backend: str, default_tol: float) -> Callable:
-    """Register the reference solver ``backend`` (a key of :data:`lcpbench.qp.QP_BACKENDS`).
+    """Register the reference solver ``backend`` (a key of :data:`lcpbench.toolkit.qp.QP_BACKENDS`).
 
     Builds its frozen parameter dataclass (``tol``, ``polish``) and the solver
     function, and registers both with ``needs_dense=True, reference=True``.
@@ -125,7 +125,7 @@ def make_reference_solver(backend: str, default_tol: float) -> Callable:
         f"    Not an MVP-only method (method paper, section \"Numerical Results\": the\n"
         f"    ground truth the baselines of \"Comparison Methods\" are checked against).\n"
         f"    Solves ``min 1/2 x'Ax + b'x, x >= 0`` with qpsolvers' {backend} backend at\n"
-        f"    ``tol`` (options in :data:`lcpbench.qp.QP_BACKENDS`), optionally polishes\n"
+        f"    ``tol`` (options in :data:`lcpbench.toolkit.qp.QP_BACKENDS`), optionally polishes\n"
         f"    and refines the active set on the dense matrix (uncounted dense algebra,\n"
         f"    like the backend itself), then computes ``w = A x + b`` with one counted\n"
         f"    MVP: 1 MVP per solve in total.\n"

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.context import SolverContext
-from lcpbench.result import SolveResult
+from lcpbench.core.context import SolverContext
+from lcpbench.core.result import SolveResult
 
 __all__ = ["ZeroSR1Params", "zero_sr1", "prox_rank1_nonneg"]
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench import registry
-from lcpbench.check import DEFAULT_BASELINE, check, default_specs, load_baselines
+from lcpbench.core import registry
+from lcpbench.workflows.check import DEFAULT_BASELINE, check, default_specs, load_baselines
 from lcpbench.cli import main
-from lcpbench.generate import generate
+from lcpbench.workflows.generate import generate
 from lcpbench.problems import stored as stored_mod
 from lcpbench.problems.stored import SetWriter, read_set, register_shipped_sets, set_info
 

@@ -10,8 +10,8 @@ from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 import lcpbench
 from lcpbench import LCP, Budget, Operator, Status, register_solver
-from lcpbench.operator import apply_uncounted, dense_uncounted
-from lcpbench.residuals import (all_residuals, complementarity_gap, fischer_burmeister, kkt_abs,
+from lcpbench.core.operator import apply_uncounted, dense_uncounted
+from lcpbench.core.residuals import (all_residuals, complementarity_gap, fischer_burmeister, kkt_abs,
                                 kkt_abs_inf, kkt_rel, make_stop_rule, objective)
 
 from lcp_cases import planted

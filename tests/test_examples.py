@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-import lcpbench.api
+import lcpbench.core.api
 from lcpbench.problems.hard import random_spd_matrix
 from lcpbench.problems.random import symmetric_perturbation
 
@@ -14,7 +14,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_api_doctests():
-    failed, attempted = doctest.testmod(lcpbench.api, optionflags=doctest.ELLIPSIS)
+    failed, attempted = doctest.testmod(lcpbench.core.api, optionflags=doctest.ELLIPSIS)
     assert attempted > 0 and failed == 0
 
 

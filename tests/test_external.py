@@ -12,7 +12,7 @@ import scipy.sparse as sp
 
 import lcpbench
 import lcpbench.problems.external as ex
-from lcpbench.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem, make_params
 
 
 def spd(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:

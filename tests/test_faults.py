@@ -16,11 +16,11 @@ import pandas as pd
 import pytest
 
 import misbehave_plugin
-from lcpbench import executors
+from lcpbench.run import executors
 from lcpbench.cli import main
-from lcpbench.runner import execute, plan
-from lcpbench.store import RunStore, atomic_write
-from lcpbench.sweep import Sweep
+from lcpbench.run.runner import execute, plan
+from lcpbench.run.store import RunStore, atomic_write
+from lcpbench.run.sweep import Sweep
 
 PLUGIN = str(Path(misbehave_plugin.__file__).resolve())
 TIMING = ["time_s", "mvp_time_s", "started", "finished", "info", "message"]

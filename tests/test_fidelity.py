@@ -10,7 +10,7 @@ import pytest
 from lcpbench.problems.stored import SetWriter
 
 from lcpbench import LCP, Operator
-from lcpbench.fidelity import (
+from lcpbench.workflows.fidelity import (
     TABLE_COLUMNS,
     cottle_bounds,
     cottle_c,
@@ -243,7 +243,7 @@ def test_fidelity_section_is_empty_without_low_fidelities(tmp_path) -> None:
 
 
 def test_cottle_c_restores_blas_threads() -> None:
-    from lcpbench.fidelity import _openblas_controls
+    from lcpbench.workflows.fidelity import _openblas_controls
 
     before = [get() for get, _ in _openblas_controls()]
     cottle_c(np.diag([2.0, 1.0, 3.0]) + 0.1)

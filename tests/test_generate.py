@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from lcpbench.cli import main
-from lcpbench.generate import generate, instance_id, parse_lows, parse_steps
-from lcpbench.operator import dense_uncounted
+from lcpbench.workflows.generate import generate, instance_id, parse_lows, parse_steps
+from lcpbench.core.operator import dense_uncounted
 from lcpbench.problems.stored import instance_ids, read_instance, read_set, set_info
 from lcpbench.problems.suspension.scene import make_scene
 

@@ -61,7 +61,7 @@ def test_live_bim_contact_operator_is_symmetrised_with_the_adjoint():
     """The boundary-integral contact operator is D'(M + M')D/2: symmetric to the GMRES
     tolerance, two mobility solves per product, while the one-solve operator
     (symmetrize=False) keeps the discretisation's asymmetry."""
-    from lcpbench.operator import dense_uncounted
+    from lcpbench.core.operator import dense_uncounted
     from lcpbench.problems.suspension.contacts import build_contact_problem
 
     c = np.array([[0.0, 0.0, 0.0], [2.05, 0.3, 0.0], [0.3, 2.2, 0.2], [0.2, 0.8, 2.1]])

@@ -9,7 +9,7 @@ from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 import lcpbench
 from lcpbench import LCP, Operator
-from lcpbench.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem, make_params
 
 
 def _planted(seed, n=60, cond=50.0):

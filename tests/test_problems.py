@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench.registry import get_problem, make_params
-from lcpbench.residuals import kkt_abs
+from lcpbench.core.registry import get_problem, make_params
+from lcpbench.core.residuals import kkt_abs
 
 #: Every family with small parameters (fast), and whether it is seeded.
 SMALL = {
@@ -180,7 +180,7 @@ def test_bifidelity_low_operator(indefinite):
         low = lcp.low["low"]
         assert low.declared_cost == 0.25 and lcp.A.declared_cost == 1.0
         A = lcp.dense()
-        from lcpbench.operator import dense_uncounted
+        from lcpbench.core.operator import dense_uncounted
         A_low = dense_uncounted(low)
         assert np.linalg.eigvalsh(A)[0] > 0
         lam_low = np.linalg.eigvalsh(A_low)[0]

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from lcpbench.prox import weighted_prox
-from lcpbench.qp import polish_active_set, solve_nonneg_qp
+from lcpbench.toolkit.prox import weighted_prox
+from lcpbench.toolkit.qp import polish_active_set, solve_nonneg_qp
 
 
 def _metric(rng, n, r1, r2):

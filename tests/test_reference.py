@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench.registry import get_problem, get_solver, make_params
-from lcpbench.result import Status
+from lcpbench.core.registry import get_problem, get_solver, make_params
+from lcpbench.core.result import Status
 
 REFERENCE = ("clarabel", "proxqp", "osqp")
 
@@ -76,7 +76,7 @@ def test_one_counted_mvp_for_w():
 
 
 def test_backend_failure_is_failed(monkeypatch):
-    import lcpbench.qp as mod
+    import lcpbench.toolkit.qp as mod
 
     lcp = generate("planted")[0]
     calls = []
@@ -100,8 +100,8 @@ def test_backend_failure_is_failed(monkeypatch):
 
 
 def test_refine_rescues_singular_active_set():
-    from lcpbench.qp import polish_active_set, solve_nonneg_qp
-    from lcpbench.qp import refine_active_set
+    from lcpbench.toolkit.qp import polish_active_set, solve_nonneg_qp
+    from lcpbench.toolkit.qp import refine_active_set
 
     for lcp in generate("singular-psd"):
         A, b = lcp.dense(), lcp.b

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import pytest
 
-from lcpbench.report import render_report
-from lcpbench.runner import execute, plan
-from lcpbench.store import RunStore
-from lcpbench.sweep import Sweep
+from lcpbench.report.render import render_report
+from lcpbench.run.runner import execute, plan
+from lcpbench.run.store import RunStore
+from lcpbench.run.sweep import Sweep
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"

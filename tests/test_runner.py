@@ -8,10 +8,10 @@ import pandas as pd
 import pytest
 
 import misbehave_plugin  # noqa: F401  (registers test-misbehave)
-from lcpbench import executors
-from lcpbench.store import HISTORY_STORE_COLUMNS, RESULT_COLUMNS, RunStore
-from lcpbench.sweep import Sweep, expand
-from lcpbench.runner import execute, plan
+from lcpbench.run import executors
+from lcpbench.run.store import HISTORY_STORE_COLUMNS, RESULT_COLUMNS, RunStore
+from lcpbench.run.sweep import Sweep, expand
+from lcpbench.run.runner import execute, plan
 
 
 SMALL = "fathi:sizes=[4,6]"

@@ -9,14 +9,14 @@ import pandas as pd
 import pytest
 import scipy.sparse as sp
 
-from lcpbench.api import run_solver
+from lcpbench.core.api import run_solver
 from lcpbench.cli import main
 from lcpbench.problems.suspension.contacts import (
     Contacts, build_contact_problem, contact_lcp, max_overlap, parse_fidelity)
 from lcpbench.problems.suspension.scene import (
     LatticeParams, LatticeScene, bisect_scale, make_scene)
-from lcpbench.simulate import simulate
-from lcpbench.tables import online_table
+from lcpbench.workflows.simulate import simulate
+from lcpbench.report.tables import online_table
 
 
 def _has_rpy() -> bool:

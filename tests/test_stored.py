@@ -13,7 +13,7 @@ import pytest
 
 import lcpbench
 import lcpbench.problems.stored as st
-from lcpbench.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem, make_params
 
 GEN = "lcpbench generate --scene test --out SET.h5"
 

@@ -43,8 +43,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-from lcpbench.lcp import LCP
-from lcpbench.operator import Operator, apply_uncounted
+from lcpbench.core.lcp import LCP
+from lcpbench.core.operator import Operator, apply_uncounted
 
 from .geometry import check_configuration, check_viscosity, pair_gaps
 
@@ -374,7 +374,7 @@ class ContactProblem:
         """``U = U_nc + M D x`` (reuses a product of ``A`` at exactly ``x`` if one was made).
 
         The framework's verification of a solve applies ``A`` at the returned
-        ``x``, so after :func:`lcpbench.api.run_solver` this costs no new solve.
+        ``x``, so after :func:`lcpbench.core.api.run_solver` this costs no new solve.
         """
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         if x.shape != (self.contacts.n,):

@@ -45,7 +45,7 @@ from typing import Any, Optional, Union
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from lcpbench.registry import make_params, parse_spec
+from lcpbench.core.registry import make_params, parse_spec
 
 from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
 from .geometry import pair_gaps
@@ -414,7 +414,7 @@ class LatticeScene:
         solver : str
             Registered solver spec, e.g. ``bi-pqn:low=rpy``.
         tol, stop : stop rule of the solve.
-        budget : lcpbench.context.Budget, optional
+        budget : lcpbench.core.context.Budget, optional
         warm_start : bool
             Start from the previous step's forces matched by pair identity.
         params : dict, optional
@@ -424,7 +424,7 @@ class LatticeScene:
         -------
         StepRecord
         """
-        from lcpbench.api import run_solver
+        from lcpbench.core.api import run_solver
 
         t0 = time.perf_counter()
         problem = self.build(warm_start)

@@ -7,9 +7,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .lcp import LCP
-from .qp import solve_and_refine
-from .residuals import kkt_abs, objective
+from lcpbench.core.lcp import LCP
+from lcpbench.toolkit.qp import solve_and_refine
+from lcpbench.core.residuals import kkt_abs, objective
 
 __all__ = ["Reference", "reference", "AGREE_RTOL"]
 
@@ -67,7 +67,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
     10^4 x looser if the backend reports failure: at 1e-12 Clarabel fails on
     most planted instances and ProxQP on badly scaled b); each answer is then
     refined on the dense matrix by the active-set polish and correction steps
-    of :func:`lcpbench.qp.solve_and_refine`, each kept only when it lowers the
+    of :func:`lcpbench.toolkit.qp.solve_and_refine`, each kept only when it lowers the
     residual. The reference is *accepted* when at least two
     backends agree on ``w`` (compared rather than ``x``, which is not unique
     when A is singular) to ``rtol`` relative; otherwise the disagreement is

@@ -66,7 +66,7 @@ class SolveResult:
         ``||min(x, w)||`` at the solver's own ``w``.
     verified : dict
         The framework's residuals at ``w = A x + b`` recomputed by one uncounted
-        product (keys of :func:`lcpbench.residuals.all_residuals`).
+        product (keys of :func:`lcpbench.core.residuals.all_residuals`).
     solved : bool
         True only if the verified residual meets the stop rule's absolute bound.
     solver, params : str, dict

@@ -7,12 +7,12 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 
-from .context import Budget, Monitor, SolverContext, StopSolver
-from .lcp import LCP
-from .operator import BudgetExhausted
-from .registry import get_solver, make_params, parse_spec
-from .residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
-from .result import SolveResult, Status
+from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
+from lcpbench.core.lcp import LCP
+from lcpbench.core.operator import BudgetExhausted
+from lcpbench.core.registry import get_solver, make_params, parse_spec
+from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
+from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["solve", "run_solver", "DEFAULT_SOLVER"]
 
@@ -46,7 +46,7 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         instance can be solved repeatedly.
     solver : str
         ``name[:key=value,...]``.
-    stop, tol : see :func:`lcpbench.residuals.make_stop_rule`.
+    stop, tol : see :func:`lcpbench.core.residuals.make_stop_rule`.
     budget : Budget, optional
     x0 : ndarray, optional
         Warm start (overrides ``lcp.x0``); negative entries are projected to 0.

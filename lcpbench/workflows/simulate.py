@@ -35,11 +35,11 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import pandas as pd
 
-from .context import Budget
-from .registry import get_solver, make_params, parse_spec
-from .residuals import make_stop_rule
-from .runner import result_fields
-from .store import RunStore
+from lcpbench.core.context import Budget
+from lcpbench.core.registry import get_solver, make_params, parse_spec
+from lcpbench.core.residuals import make_stop_rule
+from lcpbench.run.runner import result_fields
+from lcpbench.run.store import RunStore
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL"]
 
@@ -117,7 +117,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
 
     from lcpbench.problems.suspension.scene import make_scene
 
-    from .runner import git_commit, machine_info
+    from lcpbench.run.runner import git_commit, machine_info
 
     if isinstance(solver_spec, str):
         solver_spec = [solver_spec]

@@ -44,11 +44,11 @@ from typing import Iterable, Optional, Sequence, Union
 
 import numpy as np
 
-from . import __version__
-from .context import Budget
-from .lcp import LCP
-from .operator import Operator, dense_uncounted
-from .ranges import parse_ranges
+from lcpbench import __version__
+from lcpbench.core.context import Budget
+from lcpbench.core.lcp import LCP
+from lcpbench.core.operator import Operator, dense_uncounted
+from lcpbench.core.ranges import parse_ranges
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
            "add_generate_parser", "cmd_generate", "GenerateSummary"]
@@ -266,9 +266,9 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     from lcpbench.problems.stored import SetWriter, instance_ids, read_instance
     from lcpbench.problems.suspension.scene import make_scene
 
-    from .api import run_solver
-    from .reference import reference as consensus
-    from .registry import get_solver, make_params, parse_spec
+    from lcpbench.core.api import run_solver
+    from lcpbench.core.reference import reference as consensus
+    from lcpbench.core.registry import get_solver, make_params, parse_spec
 
     t_start = time.perf_counter()
     wanted = parse_steps(steps)

@@ -6,8 +6,8 @@ from typing import Optional
 
 import numpy as np
 
-from .context import SolverContext
-from .result import Status
+from lcpbench.core.context import SolverContext
+from lcpbench.core.result import Status
 
 __all__ = ["ConfirmedReport"]
 

@@ -43,10 +43,10 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from . import __version__
-from .context import Budget
-from .operator import apply_uncounted
-from .registry import solvers
+from lcpbench import __version__
+from lcpbench.core.context import Budget
+from lcpbench.core.operator import apply_uncounted
+from lcpbench.core.registry import solvers
 
 __all__ = ["check", "CheckRow", "default_specs", "load_baselines", "write_baselines",
            "resolve_sets", "format_table", "add_check_parser",
@@ -245,7 +245,7 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
 
     from lcpbench.problems.stored import read_set
 
-    from .api import run_solver
+    from lcpbench.core.api import run_solver
 
     path = Path(baseline) if baseline else DEFAULT_BASELINE
     data = load_baselines(path)

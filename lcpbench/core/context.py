@@ -8,7 +8,7 @@ A solver receives a :class:`SolverContext`. It applies ``ctx.A`` (and
   charging the solver's clock for the bookkeeping,
 * applies the stop rule and the iteration cap, and
 * enforces the budget (max E-MVPs, max seconds) inside the operators: a product
-  that would exceed it raises :class:`~lcpbench.operator.BudgetExhausted`, which
+  that would exceed it raises :class:`~lcpbench.core.operator.BudgetExhausted`, which
   the framework turns into a ``max_iter`` result at the last reported iterate.
 """
 
@@ -22,10 +22,10 @@ import numpy as np
 import pandas as pd
 from scipy.sparse.linalg import LinearOperator, eigsh
 
-from .lcp import LCP
-from .operator import BudgetExhausted, Operator, apply_uncounted
-from .residuals import StopRule, kkt_abs, kkt_rel, objective
-from .result import HISTORY_COLUMNS, SolveResult, Status
+from lcpbench.core.lcp import LCP
+from lcpbench.core.operator import BudgetExhausted, Operator, apply_uncounted
+from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
+from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
 __all__ = ["Budget", "Monitor", "SolverContext", "StopSolver"]
 
@@ -62,7 +62,7 @@ class Budget:
 
 
 class Monitor:
-    """Records one row per iterate (columns :data:`~lcpbench.result.HISTORY_COLUMNS`).
+    """Records one row per iterate (columns :data:`~lcpbench.core.result.HISTORY_COLUMNS`).
 
     Parameters
     ----------

@@ -18,7 +18,7 @@ from typing import Iterable, Optional
 
 import pandas as pd
 
-from .result import HISTORY_COLUMNS
+from lcpbench.core.result import HISTORY_COLUMNS
 
 __all__ = ["RunStore", "RunLock", "StoreLocked", "RESULT_COLUMNS", "HISTORY_STORE_COLUMNS", "atomic_write"]
 

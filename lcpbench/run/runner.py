@@ -1,12 +1,12 @@
 """Run a sweep: plan the runs, solve each, verify it, append it to the run store.
 
 Every run is verified by the framework (one uncounted product, inside
-:func:`lcpbench.api.run_solver`) and compared with the instance's reference
+:func:`lcpbench.core.api.run_solver`) and compared with the instance's reference
 when one exists: a stored one (planted solutions, stored sets) or the
 consensus of the QP solvers (:func:`lcpbench.reference`) for explicit
 matrices up to ``reference_max_n``.
 
-Execution is delegated to an executor (:mod:`lcpbench.executors`): in this
+Execution is delegated to an executor (:mod:`lcpbench.run.executors`): in this
 process, in forked children (at most ``jobs`` at a time, each inheriting the
 problem instances: nothing is pickled but the result) or on Dask. A run over
 its timeout is killed and recorded as ``timeout``; a run whose process dies
@@ -27,13 +27,13 @@ from typing import Callable, Optional
 import numpy as np
 import pandas as pd
 
-from .api import run_solver
-from .context import Budget
-from .lcp import LCP
-from .reference import reference as consensus_reference
-from .registry import get_problem, get_solver, make_params
-from .store import RunStore
-from .sweep import RunSpec, Spec, Sweep
+from lcpbench.core.api import run_solver
+from lcpbench.core.context import Budget
+from lcpbench.core.lcp import LCP
+from lcpbench.core.reference import reference as consensus_reference
+from lcpbench.core.registry import get_problem, get_solver, make_params
+from lcpbench.run.store import RunStore
+from lcpbench.run.sweep import RunSpec, Spec, Sweep
 
 __all__ = ["Plan", "plan", "per_low", "result_fields", "execute", "perform", "instance_reference", "machine_info"]
 
@@ -271,7 +271,7 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     from tqdm import tqdm
 
-    from .executors import make_executor
+    from lcpbench.run.executors import make_executor
 
     kind = executor or ("process" if jobs > 1 else "local")
     runner = make_executor(kind, jobs, timeout, scheduler)

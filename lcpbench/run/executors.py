@@ -1,7 +1,7 @@
 """Where runs execute: in this process, in forked children, or on a Dask cluster.
 
 All executors give the same rows (up to timings) for the same sweep, because
-every run is the same pure function of its :class:`~lcpbench.sweep.RunSpec`.
+every run is the same pure function of its :class:`~lcpbench.run.sweep.RunSpec`.
 
 Isolation: outside the plain in-process path, every run executes in a child
 forked for it (:class:`ForkedCall`, ``os.fork`` and a pipe, which also works

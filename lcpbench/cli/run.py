@@ -7,10 +7,10 @@ import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .report import render_report
-from .runner import describe_counts, execute, git_commit, machine_info, plan
-from .store import RunStore
-from .sweep import Sweep, default_sweep, load_config
+from lcpbench.report.render import render_report
+from lcpbench.run.runner import describe_counts, execute, git_commit, machine_info, plan
+from lcpbench.run.store import RunStore
+from lcpbench.run.sweep import Sweep, default_sweep, load_config
 
 __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep"]
 

@@ -15,12 +15,12 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from . import __version__
-from .check import add_check_parser
-from .generate import add_generate_parser
-from .registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
-from .run_command import add_report_parser, add_run_parser
-from .store import StoreLocked
+from lcpbench import __version__
+from lcpbench.workflows.check import add_check_parser
+from lcpbench.workflows.generate import add_generate_parser
+from lcpbench.core.registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
+from lcpbench.cli.run import add_report_parser, add_run_parser
+from lcpbench.run.store import StoreLocked
 
 __all__ = ["main", "build_parser"]
 
@@ -173,8 +173,8 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    from .api import run_solver
-    from .context import Budget
+    from lcpbench.core.api import run_solver
+    from lcpbench.core.context import Budget
 
     name, raw = parse_spec(args.problem)
     info = get_problem(name)
@@ -215,7 +215,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
 
 def _unknown_solver(name: str):
-    from .registry import get_solver
+    from lcpbench.core.registry import get_solver
     return get_solver(name)        # raises the registry's KeyError with suggestions
 
 
@@ -238,7 +238,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
-    from .simulate import DEFAULT_OVERLAP_TOL, simulate
+    from lcpbench.workflows.simulate import DEFAULT_OVERLAP_TOL, simulate
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
@@ -281,6 +281,3 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"lcpbench {args.command}: error: {msg}", file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -31,7 +31,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from .registry import get_problem, get_solver, make_params, parse_spec, problems, solvers, \
+from lcpbench.core.registry import get_problem, get_solver, make_params, parse_spec, problems, solvers, \
     split_top_level
 
 __all__ = ["Spec", "RunSpec", "Sweep", "expand", "load_config", "default_sweep"]

@@ -8,7 +8,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 import scipy.sparse as sp
 
-from .operator import Operator, apply_uncounted, as_operator, dense_uncounted
+from lcpbench.core.operator import Operator, apply_uncounted, as_operator, dense_uncounted
 
 __all__ = ["LCP", "SYMMETRY_RTOL"]
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import plots
+from lcpbench.report import plots
 
 __all__ = [
     "GRID_MODELS",
@@ -407,7 +407,7 @@ def _knob(value) -> float:
 
 def _iter_instances(path_or_lcps, instances: Sequence[str] | None = None):
     """Yield ``(A, {name: (A_low, cost_ratio, attrs)})`` per instance."""
-    from .operator import dense_uncounted
+    from lcpbench.core.operator import dense_uncounted
 
     if isinstance(path_or_lcps, (str, Path)):
         from lcpbench.problems.stored import instance_ids, read_instance
@@ -629,7 +629,7 @@ def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
     table instead. The SVG's ids get ``id_prefix`` so
     several figures can share one page.
     """
-    from .plots import prefix_ids
+    from lcpbench.report.plots import prefix_ids
 
     parts = []
     svg = heatmap_svg(table)
@@ -713,7 +713,7 @@ def fidelity_section(paths: Iterable) -> str:
     """
     from lcpbench.problems.stored import StoredSetError
 
-    from .plots import prefix_ids
+    from lcpbench.report.plots import prefix_ids
 
     parts = []
     for k, item in enumerate(paths):

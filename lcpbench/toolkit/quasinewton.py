@@ -3,7 +3,7 @@
 The BFGS update ``B+ = B + y y'/(y's) - (B s)(B s)'/(s'B s)`` adds the column
 ``y / sqrt(y's)`` to ``U`` and ``B s / sqrt(s'B s)`` to ``V`` (Nocedal & Wright,
 2006, sec. 6.1 and 7.2 "unrolling"), which is the diagonal-plus-low-rank form the
-weighted prox (:mod:`lcpbench.prox`) needs. Two initial models are used by the
+weighted prox (:mod:`lcpbench.toolkit.prox`) needs. Two initial models are used by the
 PQN solvers:
 
 * :class:`DiagonalBFGS` — ``B0 = D`` diagonal (``d * I``): the Mono-PQN model, with

@@ -13,8 +13,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import fidelity, plots, tables
-from .store import RunStore, atomic_write
+from lcpbench.workflows import fidelity
+
+from lcpbench.report import plots
+
+from lcpbench.report import tables
+from lcpbench.run.store import RunStore, atomic_write
 
 __all__ = ["render_report"]
 

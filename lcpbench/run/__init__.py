@@ -1,0 +1,1 @@
+"""Run machinery: sweep specifications, the runner, the run store and the executors."""
