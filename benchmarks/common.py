@@ -7,7 +7,8 @@ import sys
 import numpy as np
 
 import lcpbench
-from lcpbench.core.registry import get_problem, make_params, parse_spec, solvers
+from lcpbench.core.registry import get_problem, solvers
+from lcpbench.core.specs import make_params, parse_spec
 
 HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
         "bb-cycle"]

@@ -17,12 +17,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from lcpbench.problems.stored import (
-    StoredSetError,
-    instance_ids,
-    parse_instances,
-    shipped_sets,
-)
+from lcpbench.core.registry import stored_sets
+from lcpbench.sets import StoredSetError, instance_ids, parse_instances
 
 from lcpbench.workflows.fidelity import fidelity_table
 
@@ -35,8 +31,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="positions to use, e.g. '0-9' or '0,3,5-7' (default all)")
     args = ap.parse_args(argv)
     path = Path(args.path)
-    if not path.exists() and args.path in shipped_sets():
-        path = shipped_sets()[args.path]
+    if not path.exists() and args.path in stored_sets():
+        path = Path(stored_sets()[args.path].path)
     try:
         all_ids = instance_ids(path)
         ids = [all_ids[i] for i in parse_instances(args.instances, len(all_ids))]

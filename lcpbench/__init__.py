@@ -14,7 +14,8 @@ from .core.context import Budget, Monitor, SolverContext, StopSolver
 from .core.lcp import LCP
 from .core.operator import BudgetExhausted, Operator
 from .core.reference import Reference, reference
-from .core.registry import get_problem, get_solver, parse_spec, register_problem, register_solver
+from .core.registry import get_problem, get_solver, register_problem, register_solver
+from .core.specs import parse_spec
 from .core.registry import problems as list_problems
 from .core.registry import solvers as list_solvers
 from .core.residuals import StopRule

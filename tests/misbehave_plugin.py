@@ -33,7 +33,7 @@ class MisbehaveParams:
     seconds: float = 0.2
 
 
-@register_solver("test-misbehave", MisbehaveParams)
+@register_solver("test-misbehave", MisbehaveParams, listed=False)
 def misbehave(ctx, p):
     """A solver that misbehaves on purpose."""
     if p.mode == "sleep":

@@ -101,7 +101,7 @@ def test_b_required_and_not_duplicated():
 def test_unknown_problem_and_bad_problem_parameter():
     with pytest.raises(KeyError, match="no-such-problem"):
         lcpbench.get_problem("no-such-problem")
-    from lcpbench.core.registry import make_params
+    from lcpbench.core.specs import make_params
     info = lcpbench.get_problem("random-spd")
     with pytest.raises((TypeError, ValueError), match="count"):
         make_params("problem random-spd", info.params, {"count": "many"})

@@ -7,11 +7,12 @@ import pytest
 
 import lcpbench
 from lcpbench.core import registry
-from lcpbench.workflows.check import DEFAULT_BASELINE, check, default_specs, load_baselines
+from lcpbench.workflows.check import check, default_baseline, default_specs, load_baselines
 from lcpbench.cli import main
 from lcpbench.workflows.generate import generate
 from lcpbench.problems import stored as stored_mod
-from lcpbench.problems.stored import SetWriter, read_set, register_shipped_sets, set_info
+from lcpbench.problems.stored import register_shipped_sets
+from lcpbench.sets import SetWriter, read_set, set_info
 
 SCENE = "lattice:m=3,model=rpy"
 
@@ -45,7 +46,7 @@ def test_default_solvers_are_the_mvp_only_ones():
     assert not {"clarabel", "osqp", "proxqp", "pgs", "lemke"} & set(specs)
     assert "bi-pqn" in default_specs(["self"])
     assert not any(s.startswith(("bi-pqn", "multi-pqn")) for s in default_specs([]))
-    assert DEFAULT_BASELINE.name == "baselines.json"
+    assert default_baseline().name == "baselines.json"
 
 
 def test_update_baseline_writes_a_versioned_file_and_check_passes(set_path, baseline, capsys):
@@ -144,3 +145,4 @@ def test_shipped_sets_are_problem_plugins(tmp_path, set_path, monkeypatch, capsy
         assert [r.verdict for r in rows] == ["new"]
     finally:
         registry._PROBLEMS.pop("set-lattice-demo", None)
+        registry._SETS.pop("Lattice_demo", None)

@@ -114,7 +114,7 @@ class _LiarParams:
     lie: str = "w"
 
 
-@register_solver("test-liar", _LiarParams)
+@register_solver("test-liar", _LiarParams, listed=False)
 def _liar(ctx, p):
     """Claims convergence without solving."""
     x = np.ones(ctx.n)
@@ -146,7 +146,7 @@ class _GreedyParams:
     block: int = 1
 
 
-@register_solver("test-greedy", _GreedyParams)
+@register_solver("test-greedy", _GreedyParams, listed=False)
 def _greedy(ctx, p):
     """Multiplies forever; only the budget stops it."""
     rng = np.random.default_rng(0)
@@ -175,7 +175,7 @@ class _SleepyParams:
     nap: float = 0.02
 
 
-@register_solver("test-sleepy", _SleepyParams)
+@register_solver("test-sleepy", _SleepyParams, listed=False)
 def _sleepy(ctx, p):
     """Reports a non-solution slowly until the time budget stops it."""
     x = np.zeros(ctx.n)

@@ -12,7 +12,8 @@ import scipy.sparse as sp
 
 import lcpbench
 import lcpbench.problems.external as ex
-from lcpbench.core.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem
+from lcpbench.core.specs import make_params
 
 
 def spd(seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:

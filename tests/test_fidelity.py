@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from lcpbench.problems.stored import SetWriter
+from lcpbench.sets import SetWriter
 
 from lcpbench import LCP, Operator
 from lcpbench.workflows.fidelity import (

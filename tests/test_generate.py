@@ -7,8 +7,8 @@ import pytest
 from lcpbench.cli import main
 from lcpbench.workflows.generate import generate, instance_id, parse_lows, parse_steps
 from lcpbench.core.operator import dense_uncounted
-from lcpbench.problems.stored import instance_ids, read_instance, read_set, set_info
-from lcpbench.problems.suspension.scene import make_scene
+from lcpbench.sets import instance_ids, read_instance, read_set, set_info
+from lcpbench.core.registry import make_scene
 
 SCENE = "lattice:m=3,model=rpy"
 STEPS = "20-21"          # the cluster has formed: n ~ 45 contacts, many active
@@ -28,7 +28,7 @@ def small_set(tmp_path_factory):
     return path
 
 
-def test_parse_steps_and_lows():
+def test_parse_steps_and_lows(tmp_path):
     assert parse_steps("31-33,40") == [31, 32, 33, 40]
     assert parse_steps("5") == [5]
     with pytest.raises(ValueError, match="reversed"):
@@ -40,8 +40,11 @@ def test_parse_steps_and_lows():
     assert parse_lows(["self,rpy", "rpy"]) == ["self", "rpy"]
     with pytest.raises(ValueError, match="powers of ten"):
         parse_lows(["p=4"], [3e-7])
+    # the scene validates the names, before any step is simulated or anything is written
+    out = tmp_path / "never.h5"
     with pytest.raises(ValueError, match="unknown fidelity"):
-        parse_lows(["fast"])
+        generate("lattice:m=2,model=rpy", "0", out, lows=parse_lows(["fast"]), progress=False)
+    assert not out.exists()
 
 
 def test_layout_provenance_and_costs(small_set):

@@ -12,7 +12,8 @@ import pytest
 
 import lcpbench
 from lcpbench.problems.random import with_perturbed_lows
-from lcpbench.core.registry import get_problem, make_params, solvers
+from lcpbench.core.registry import get_problem, solvers
+from lcpbench.core.specs import make_params
 
 HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
         "bb-cycle"]

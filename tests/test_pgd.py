@@ -9,7 +9,8 @@ from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 import lcpbench
 from lcpbench import LCP, Operator
-from lcpbench.core.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem
+from lcpbench.core.specs import make_params
 
 
 def _planted(seed, n=60, cond=50.0):

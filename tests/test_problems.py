@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench.core.registry import get_problem, make_params
+from lcpbench.core.registry import get_problem
+from lcpbench.core.specs import make_params
 from lcpbench.core.residuals import kkt_abs
 
 #: Every family with small parameters (fast), and whether it is seeded.

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench.core.registry import get_problem, get_solver, make_params
+from lcpbench.core.registry import get_problem, get_solver
+from lcpbench.core.specs import make_params
 from lcpbench.core.result import Status
 
 REFERENCE = ("clarabel", "proxqp", "osqp")

@@ -12,8 +12,11 @@ import numpy as np
 import pytest
 
 import lcpbench
-import lcpbench.problems.stored as st
-from lcpbench.core.registry import get_problem, make_params
+import lcpbench.problems.stored as stored_plugin
+import lcpbench.sets as st
+import lcpbench.sets.write
+from lcpbench.core.registry import get_problem
+from lcpbench.core.specs import make_params
 
 GEN = "lcpbench generate --scene test --out SET.h5"
 
@@ -230,7 +233,7 @@ def test_killed_writer_leaves_a_recoverable_file(tmp_path):
     write_set(path, ids=("0",))
     script = textwrap.dedent(f"""
         import os, h5py, numpy as np
-        import lcpbench.problems.stored as st
+        import lcpbench.sets as st
         def die(self, *a, **k):
             self.flush()
             os._exit(3)                     # killed between writing and committing
@@ -258,7 +261,7 @@ def test_failed_write_leaves_no_trace(tmp_path, monkeypatch):
         raise OSError("disk full")
 
     with st.SetWriter(path, title="t", description="d", generator="g") as w:
-        monkeypatch.setattr(st, "_digest", boom)
+        monkeypatch.setattr(lcpbench.sets.write, "_digest", boom)
         with pytest.raises(OSError, match="disk full"):
             w.write_instance("1", np.eye(3), np.ones(3))
         monkeypatch.undo()
@@ -304,9 +307,9 @@ def test_plugin_and_shipped_sets(tmp_path, monkeypatch):
     assert [lcp.meta["instance"] for lcp in lcps] == ["1", "2"]
     with pytest.raises(ValueError, match="path is required"):
         make_params("stored", info.params, {})
-    for name, p in st.shipped_sets().items():
+    for name, p in stored_plugin.shipped_sets().items():
         assert p.suffix == ".h5" and p.stem == name and p.exists()
-    monkeypatch.setattr(st, "DATA_DIR", tmp_path)
-    assert st.shipped_sets() == {"mine": path}
+    monkeypatch.setattr(stored_plugin, "DATA_DIR", tmp_path)
+    assert stored_plugin.shipped_sets() == {"mine": path}
     lcps = info.func(make_params("stored", info.params, {"path": "mine"}))
     assert len(lcps) == 3 and lcps[0].meta["set"] == "mine"

@@ -18,7 +18,10 @@ import numpy as np
 from lcpbench import __version__
 from lcpbench.workflows.check import add_check_parser
 from lcpbench.workflows.generate import add_generate_parser
-from lcpbench.core.registry import describe_params, get_problem, make_params, parse_spec, problems, solvers
+from lcpbench.core.defaults import (DEFAULT_SOLVER, EXAMPLE_PROBLEM, EXAMPLE_SCENE,
+                                     SIMULATE_SOLVER)
+from lcpbench.core.registry import get_problem, problems, solvers
+from lcpbench.core.specs import describe_params, make_params, parse_spec
 from lcpbench.cli.run import add_report_parser, add_run_parser
 from lcpbench.run.store import StoreLocked
 
@@ -40,10 +43,10 @@ def _add_solve_parser(sub) -> None:
                        description="Generate the instances of a problem family and solve "
                                    "each with every --solver; prints status, E-MVPs, "
                                    "verified residual and time per run.")
-    p.add_argument("--problem", default="random-spd", metavar="NAME[:k=v,...]",
-                   help="problem family spec (default random-spd)")
+    p.add_argument("--problem", default=EXAMPLE_PROBLEM, metavar="NAME[:k=v,...]",
+                   help=f"problem family spec (default {EXAMPLE_PROBLEM})")
     p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable (default mono-pqn)")
+                   help=f"solver spec, repeatable (default {DEFAULT_SOLVER})")
     p.add_argument("--instance", type=int, default=None, metavar="I",
                    help="solve only instance I of the family (0-based)")
     p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
@@ -59,8 +62,8 @@ def _add_simulate_parser(sub) -> None:
                                    "--solver with forward Euler, one LCP per time step, and "
                                    "write a row per step (kind=online) to the run store DIR; "
                                    "`lcpbench report DIR` renders the online table.")
-    p.add_argument("--scene", default="lattice:m=3,model=rpy", metavar="NAME[:k=v,...]",
-                   help="scene spec (default lattice:m=3,model=rpy; low=[self] adds a "
+    p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
+                   help=f"scene spec (default {EXAMPLE_SCENE}; low=[self] adds a "
                         "low-fidelity operator for multi-fidelity solvers)")
     p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
                    help="solver spec, repeatable: one simulation each (default bb-pgd)")
@@ -148,7 +151,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     entries = []
     if args.what in ("solvers", "all"):
         entries += [_entry(i, "solver") for _, i in sorted(solvers().items())
-                    if not i.name.startswith("test-")]
+                    if i.listed]
     if args.what in ("problems", "all"):
         entries += [_entry(i, "problem") for _, i in sorted(problems().items())]
     if args.json:
@@ -184,7 +187,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             raise ValueError(f"--instance {args.instance} is out of range: {args.problem} "
                              f"has {len(lcps)} instance(s), 0..{len(lcps) - 1}")
         lcps = [lcps[args.instance]]
-    specs = args.solver or ["mono-pqn"]
+    specs = args.solver or [DEFAULT_SOLVER]
     for spec in specs:            # fail on a bad spec before any work
         sname, sraw = parse_spec(spec)
         sinfo = solvers().get(sname)
@@ -238,16 +241,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
-    from lcpbench.workflows.simulate import DEFAULT_OVERLAP_TOL, simulate
+    from lcpbench.workflows.simulate import DEFAULT_OVERLAP_TOL, Interrupted, simulate
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
-    rows = simulate(args.scene, args.solver or ["bb-pgd"], args.steps, out,
-                    warm_start=not args.no_warm_start, progress=not args.quiet, tol=args.tol,
-                    stop=args.stop, max_emvps=args.max_emvps,
-                    overlap_tol=DEFAULT_OVERLAP_TOL if args.overlap_tol is None
-                    else args.overlap_tol,
-                    argv=["lcpbench"] + list(getattr(args, "argv", [])))
+    try:
+        rows = simulate(args.scene, args.solver or [SIMULATE_SOLVER], args.steps, out,
+                        warm_start=not args.no_warm_start, progress=not args.quiet,
+                        tol=args.tol, stop=args.stop, max_emvps=args.max_emvps,
+                        overlap_tol=DEFAULT_OVERLAP_TOL if args.overlap_tol is None
+                        else args.overlap_tol,
+                        argv=["lcpbench"] + list(getattr(args, "argv", [])))
+    except Interrupted as exc:
+        print(f"lcpbench simulate: {exc}", file=sys.stderr)
+        return 143
     for solver, g in rows.groupby("solver", sort=False):
         solved = int(g["solved"].astype(bool).sum())
         print(f"{solver}: {len(g)} step(s), {solved} solved, median n "

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 
+from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.report.render import render_report
 from lcpbench.run.runner import describe_counts, execute, git_commit, machine_info, plan
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep, load_config
+from lcpbench.core.clock import utc_now
 
 __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep"]
 
@@ -49,7 +51,7 @@ def add_run_parser(sub) -> None:
 def add_report_parser(sub) -> None:
     p = sub.add_parser("report", help="render DIR/report.html from a run store")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--baseline", default="bb-pgd",
+    p.add_argument("--baseline", default=BASELINE_SOLVER,
                    help="solver the online speedups are measured against")
     p.set_defaults(func=cmd_report)
 
@@ -98,14 +100,14 @@ def _run_locked(args: argparse.Namespace, sweep: Sweep, store: RunStore, out: Pa
     meta = {"argv": ["lcpbench"] + list(args.argv), "config": config,
             "timeout": sweep.timeout, "jobs": args.jobs,
             "executor": getattr(args, "executor", None) or ("process" if args.jobs > 1 else "local"),
-            "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "started": utc_now(),
             "finished": None, "machine": machine_info(), "git_commit": git_commit(),
             "skipped": p.skipped, "previous": (old or {}).get("started")}
     store.write_meta(meta)
     counts = execute(p, store, executor=getattr(args, "executor", None), jobs=args.jobs,
                      timeout=sweep.timeout, scheduler=getattr(args, "scheduler", None),
                      quiet=quiet)
-    meta["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    meta["finished"] = utc_now()
     meta["counts"] = counts
     store.write_meta(meta)
     print(f"lcpbench run: {describe_counts(counts)}", file=sys.stderr)

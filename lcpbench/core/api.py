@@ -10,14 +10,14 @@ import numpy as np
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted
-from lcpbench.core.registry import get_solver, make_params, parse_spec
+from lcpbench.core.registry import get_solver
+from lcpbench.core.specs import make_params, parse_spec
+from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["solve", "run_solver", "DEFAULT_SOLVER"]
 
-#: The solver :func:`solve` uses when none is named.
-DEFAULT_SOLVER = "mono-pqn"
 
 
 def _resolve_solver(solver: str, params: dict):

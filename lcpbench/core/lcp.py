@@ -14,7 +14,7 @@ __all__ = ["LCP", "SYMMETRY_RTOL"]
 
 #: Relative tolerance of the symmetry check on explicit matrices:
 #: ``max|A - A'| <= SYMMETRY_RTOL * max|A|``. The live BIM mobility is only
-#: symmetric to ~1e-3 (DESIGN.md), which is why its problem plugin symmetrises
+#: symmetric to ~1e-3 (docs/mobility.md), which is why its problem plugin symmetrises
 #: explicitly before building an LCP.
 SYMMETRY_RTOL = 1e-10
 

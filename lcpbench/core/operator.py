@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-__all__ = ["Operator", "BudgetExhausted", "apply_uncounted", "as_operator"]
+__all__ = ["Operator", "BudgetExhausted", "apply_uncounted", "as_operator", "measure_cost"]
 
 
 class BudgetExhausted(RuntimeError):
@@ -233,3 +233,20 @@ def as_operator(A, *, name: str = "high", cost: Optional[float] = None) -> Opera
         return Operator(aslinearoperator(A), cost=cost, name=name)
     except Exception as exc:  # pragma: no cover - message only
         raise TypeError(f"cannot make an operator from {type(A).__name__}: {exc}") from None
+
+
+def measure_cost(op: Operator, min_seconds: float = 0.02, max_reps: int = 50) -> float:
+    """Seconds per product of ``op``, timed on uncounted products with a positive vector.
+
+    Repeats cheap products until ``min_seconds`` have passed (or ``max_reps``),
+    so microsecond operators get a stable estimate; an expensive one is timed once.
+    """
+    n = op.shape[1]
+    v = np.linspace(1.0, 2.0, n)
+    reps, t0 = 0, time.perf_counter()
+    while True:
+        apply_uncounted(op, v)
+        reps += 1
+        el = time.perf_counter() - t0
+        if el >= min_seconds or reps >= max_reps:
+            return max(el / reps, 1e-9)

@@ -1,12 +1,15 @@
-"""Registries of solvers and problems, with typed parameters parsed from strings.
+"""Registries of solvers, problems, scenes and stored sets, with typed parameters parsed from strings.
 
 A solver plugin is a function ``solve(ctx, params) -> SolveResult`` decorated
 with :func:`register_solver`; its parameters are a frozen dataclass. A problem
 plugin is a function ``generate(params) -> list[LCP]`` decorated with
-:func:`register_problem`. Built-in plugins (``lcpbench.solvers.*``,
+:func:`register_problem`. A scene plugin (an online simulation that poses one LCP
+per time step) is a factory ``make(params) -> scene`` decorated with
+:func:`register_scene`. A plugin that ships stored sets (HDF5 files) announces
+them with :func:`register_set`. Built-in plugins (``lcpbench.solvers.*``,
 ``lcpbench.problems.*``) and third-party packages are found the same way, through
-the entry-point groups ``lcpbench.solvers`` and ``lcpbench.problems``; the core
-never imports a plugin by name.
+the entry-point groups ``lcpbench.solvers``, ``lcpbench.problems`` and
+``lcpbench.scenes``; the core never imports a plugin by name.
 
 The CLI form of a choice is ``name:key=value,key=value``; a value in brackets is
 a list (``low=[p3,p4]``).
@@ -19,14 +22,17 @@ import importlib.util
 import os
 import sys
 import difflib
-import typing
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable, Optional
+from typing import Any, Callable
+
+from lcpbench.core.specs import make_params, parse_spec
 
 __all__ = [
     "SolverInfo", "ProblemInfo", "register_solver", "register_problem", "get_solver",
-    "get_problem", "solvers", "problems", "parse_spec", "make_params", "split_top_level",
+    "get_problem", "solvers", "problems",
+    "SceneInfo", "register_scene", "scenes", "get_scene", "make_scene",
+    "SetInfo", "register_set", "stored_sets",
 ]
 
 
@@ -51,6 +57,10 @@ class SolverInfo:
         True when the solver uses low-fidelity operators.
     summary : str
         First line of the docstring.
+    listed : bool
+        False for solvers that exist only to exercise the framework (test doubles):
+        runnable by name, but left out of ``lcpbench list``, the default sweep and
+        ``lcpbench check``.
     """
 
     name: str
@@ -60,6 +70,7 @@ class SolverInfo:
     reference: bool = False
     multifidelity: bool = False
     summary: str = ""
+    listed: bool = True
 
     @property
     def mvp_only(self) -> bool:
@@ -79,7 +90,9 @@ class ProblemInfo:
 
 _SOLVERS: dict[str, SolverInfo] = {}
 _PROBLEMS: dict[str, ProblemInfo] = {}
-_LOADED = {"lcpbench.solvers": False, "lcpbench.problems": False}
+_SCENES: dict[str, "SceneInfo"] = {}
+_SETS: dict[str, "SetInfo"] = {}
+_LOADED = {"lcpbench.solvers": False, "lcpbench.problems": False, "lcpbench.scenes": False}
 
 
 def _check_name(name: str) -> None:
@@ -95,26 +108,45 @@ def _check_params(name: str, params: type) -> None:
             raise TypeError(f"parameter {f.name!r} of {name!r} needs a default")
 
 
-def register_solver(name: str, params: type, *, needs_dense: bool = False,
-                    reference: bool = False, multifidelity: bool = False):
-    """Decorator registering ``func(ctx, params)`` as solver ``name``."""
+def _registrar(kind: str, table: dict, name: str, params: type, make_info: Callable):
+    """The decorator behind ``register_solver/problem/scene``: checks, then stores the info.
+
+    The same function registered again (a module imported twice) replaces its entry; a
+    different function under a taken name is refused.
+    """
     _check_name(name)
     _check_params(name, params)
 
     def deco(func):
         doc = (func.__doc__ or "").strip().splitlines()
-        info = SolverInfo(name, func, params, needs_dense, reference, multifidelity,
-                          doc[0] if doc else "")
-        old = _SOLVERS.get(name)
+        info = make_info(func, doc[0] if doc else "")
+        old = table.get(name)
         if old is not None and (old.func.__module__, old.func.__qualname__) != \
                 (func.__module__, func.__qualname__):
-            raise ValueError(f"solver {name!r} is registered twice ({old.func.__module__} and "
+            raise ValueError(f"{kind} {name!r} is registered twice ({old.func.__module__} and "
                              f"{func.__module__}); pick another name")
-        _SOLVERS[name] = info
-        func.solver_info = info
+        table[name] = info
+        setattr(func, f"{kind}_info", info)
         return func
 
     return deco
+
+
+def register_solver(name: str, params: type, *, needs_dense: bool = False,
+                    reference: bool = False, multifidelity: bool = False, listed: bool = True):
+    """Decorator registering ``func(ctx, params)`` as solver ``name``.
+
+    Parameters
+    ----------
+    name : str
+        Kebab-case registry name.
+    params : type
+        Frozen dataclass of the solver's parameters, every field with a default.
+    needs_dense, reference, multifidelity, listed : bool
+        See :class:`SolverInfo`.
+    """
+    return _registrar("solver", _SOLVERS, name, params, lambda func, summary: SolverInfo(
+        name, func, params, needs_dense, reference, multifidelity, summary, listed))
 
 
 def register_problem(name: str, params: type, *, default: bool = False):
@@ -122,21 +154,8 @@ def register_problem(name: str, params: type, *, default: bool = False):
 
     ``default=True`` puts the family in the shipped default set of ``lcpbench run``.
     """
-    _check_name(name)
-    _check_params(name, params)
-
-    def deco(func):
-        doc = (func.__doc__ or "").strip().splitlines()
-        info = ProblemInfo(name, func, params, doc[0] if doc else "", default)
-        old = _PROBLEMS.get(name)
-        if old is not None and (old.func.__module__, old.func.__qualname__) != \
-                (func.__module__, func.__qualname__):
-            raise ValueError(f"problem {name!r} is registered twice; pick another name")
-        _PROBLEMS[name] = info
-        func.problem_info = info
-        return func
-
-    return deco
+    return _registrar("problem", _PROBLEMS, name, params, lambda func, summary: ProblemInfo(
+        name, func, params, summary, default))
 
 
 #: Environment variable naming extra plugin modules or ``.py`` files (comma-separated),
@@ -152,8 +171,12 @@ def _load_env_plugins() -> None:
             if item.endswith(".py"):
                 path = os.path.abspath(item)
                 name = os.path.splitext(os.path.basename(path))[0]
-                if name in sys.modules:
-                    continue
+                loaded = sys.modules.get(name)
+                if loaded is not None and os.path.abspath(getattr(loaded, "__file__", "") or "") \
+                        == path:
+                    continue                       # this very file is loaded already
+                if loaded is not None:             # a module of that name exists: own name
+                    name = "lcpbench_plugin_" + name
                 spec = importlib.util.spec_from_file_location(name, path)
                 if spec is None or spec.loader is None:
                     raise ImportError(f"cannot import {path}")
@@ -198,6 +221,18 @@ def problems() -> dict[str, ProblemInfo]:
     return dict(sorted(_PROBLEMS.items()))
 
 
+def scenes() -> dict[str, "SceneInfo"]:
+    """All registered scene families, loading entry points on first use."""
+    _load("lcpbench.scenes")
+    return dict(sorted(_SCENES.items()))
+
+
+def stored_sets() -> dict[str, "SetInfo"]:
+    """All stored sets announced by problem plugins (``{name: SetInfo}``), natural order."""
+    _load("lcpbench.problems")
+    return dict(_SETS)
+
+
 def _unknown(kind: str, name: str, known) -> KeyError:
     close = difflib.get_close_matches(name, list(known), n=3)
     hint = f" Did you mean {', '.join(close)}?" if close else ""
@@ -221,195 +256,101 @@ def get_problem(name: str) -> ProblemInfo:
     return all_[name]
 
 
-# ---------------------------------------------------------------------- parsing
-def split_top_level(text: str, sep: str = ",") -> list[str]:
-    """Split on ``sep`` outside brackets: ``"a=1,b=[x,y]"`` -> ``["a=1", "b=[x,y]"]``."""
-    out, depth, cur = [], 0, []
-    for ch in text:
-        if ch in "[(":
-            depth += 1
-        elif ch in "])":
-            depth -= 1
-            if depth < 0:
-                raise ValueError(f"unbalanced bracket in {text!r}")
-        if ch == sep and depth == 0:
-            out.append("".join(cur))
-            cur = []
-        else:
-            cur.append(ch)
-    if depth != 0:
-        raise ValueError(f"unbalanced bracket in {text!r}")
-    out.append("".join(cur))
-    return [s.strip() for s in out if s.strip()]
 
+# ---------------------------------------------------------------------- scenes
+@dataclass(frozen=True)
+class SceneInfo:
+    """A registered scene family: ``func(params) -> scene``.
 
-def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
-    """``"bi-pqn:low=p4,memory=10"`` -> ``("bi-pqn", {"low": "p4", "memory": "10"})``.
+    A scene is an online problem: each time step poses one LCP whose solution moves
+    the particles. The object returned by ``func`` must provide
 
-    Values stay strings here; :func:`make_params` converts them by type.
+    * ``params``: the parameter dataclass it was made from;
+    * ``M``: the number of particles;
+    * ``low_names``: the low-fidelity operator names each step's LCP carries;
+    * ``fidelity_knobs(name) -> dict``: the knobs of a low-fidelity name (for example
+      ``{"model": "bim", "p": 4, "eps_gmres": 1e-6}``); raises ``ValueError`` naming
+      the accepted forms for an unknown name;
+    * ``problem(step, x0=None) -> problem`` and ``advance(problem, x)``: the step's
+      contact problem (with ``.lcp``) and the move that its solution ``x`` makes
+      (see ``lcpbench.workflows.simulate`` for the full loop).
     """
-    if not isinstance(spec, str) or not spec.strip():
-        raise ValueError(f"empty solver/problem spec {spec!r}; use NAME[:key=value,...]")
-    name, _, rest = spec.strip().partition(":")
-    raw: dict[str, str] = {}
-    for item in split_top_level(rest):
-        key, eq, val = item.partition("=")
-        key = key.strip().replace("-", "_")
-        if not eq or not key:
-            raise ValueError(f"malformed parameter {item!r} in {spec!r}; use key=value")
-        if key in raw:
-            raise ValueError(f"parameter {key!r} given twice in {spec!r}")
-        raw[key] = val.strip()
-    return name.strip(), raw
+
+    name: str
+    func: Callable
+    params: type
+    summary: str = ""
 
 
-_TRUE = {"true", "1", "yes", "on"}
-_FALSE = {"false", "0", "no", "off"}
+def register_scene(name: str, params: type):
+    """Decorator registering ``func(params) -> scene`` as scene family ``name``.
 
-
-def _convert(owner: str, key: str, tp: Any, value: Any) -> Any:
-    origin = typing.get_origin(tp)
-    args = typing.get_args(tp)
-    what = f"parameter {key!r} of {owner!r}"
-    if origin is typing.Union:
-        non_none = [a for a in args if a is not type(None)]
-        if value is None or (isinstance(value, str) and value.lower() in ("none", "null", "")):
-            if type(None) in args:
-                return None
-        errors = []
-        for a in non_none:
-            try:
-                return _convert(owner, key, a, value)
-            except (TypeError, ValueError) as exc:
-                errors.append(str(exc))
-        raise TypeError(f"{what}: {value!r} matches none of {tp}: {'; '.join(errors)}")
-    if origin is typing.Literal:
-        for a in args:
-            if value == a or (isinstance(value, str) and str(a) == value):
-                return a
-        raise ValueError(f"{what} must be one of {', '.join(map(repr, args))}, got {value!r}")
-    if origin in (tuple, list):
-        item_t = args[0] if args else str
-        if isinstance(value, str):
-            s = value.strip()
-            if s.startswith("[") and s.endswith("]"):
-                s = s[1:-1]
-            items = split_top_level(s) if s else []
-        elif isinstance(value, (list, tuple)):
-            items = list(value)
-        else:
-            items = [value]
-        return tuple(_convert(owner, key, item_t, v) for v in items)
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in _TRUE | _FALSE:
-            return value.lower() in _TRUE
-        raise TypeError(f"{what} expects true/false, got {value!r}")
-    if tp is int:
-        if isinstance(value, bool):
-            raise TypeError(f"{what} expects an integer, got {value!r}")
-        if isinstance(value, int):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-        if isinstance(value, str):
-            try:
-                return int(value)
-            except ValueError:
-                try:
-                    f = float(value)
-                except ValueError:
-                    f = None
-                if f is not None and f.is_integer():
-                    return int(f)
-        raise TypeError(f"{what} expects an integer, got {value!r}")
-    if tp is float:
-        if isinstance(value, bool):
-            raise TypeError(f"{what} expects a number, got {value!r}")
-        if isinstance(value, (int, float)):
-            return float(value)
-        if isinstance(value, str):
-            try:
-                return float(value)
-            except ValueError:
-                pass
-        raise TypeError(f"{what} expects a number, got {value!r}")
-    if tp is str:
-        if isinstance(value, str):
-            return value
-        raise TypeError(f"{what} expects a string, got {value!r}")
-    if tp is Any or tp is object:
-        return value
-    if isinstance(value, tp):
-        return value
-    raise TypeError(f"{what}: cannot convert {value!r} to {tp}")
-
-
-def make_params(owner: str, cls: type, values: Optional[dict] = None):
-    """Build the frozen parameter dataclass ``cls`` from ``values``.
-
-    Strings are converted by the field's type hint; unknown keys and values of
-    the wrong type raise errors naming the parameter and the accepted values.
-    Fields may validate themselves further in ``__post_init__``.
+    Parameters
+    ----------
+    name : str
+        Kebab-case registry name (``lattice``).
+    params : type
+        Frozen dataclass of the scene's parameters, every field with a default.
     """
-    values = dict(values or {})
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    kwargs = {}
-    for key, val in values.items():
-        k = key.replace("-", "_")
-        if k not in fields:
-            close = difflib.get_close_matches(k, list(fields), n=2)
-            hint = f" Did you mean {', '.join(close)}?" if close else ""
-            valid = ", ".join(fields) or "(none)"
-            raise TypeError(f"unknown parameter {key!r} for {owner!r}.{hint} Valid: {valid}")
-        kwargs[k] = _convert(owner, k, hints[k], val)
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
-        raise type(exc)(f"{owner}: {exc}") from None
+    return _registrar("scene", _SCENES, name, params, lambda func, summary: SceneInfo(
+        name, func, params, summary))
 
 
-def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
-    """``(name, type, default, doc)`` for every parameter (docs from the class docstring)."""
-    hints = typing.get_type_hints(cls)
-    docs = _param_docs(cls.__doc__ or "")
-    out = []
-    for f in dataclasses.fields(cls):
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-        tp = hints[f.name]
-        tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
-        out.append((f.name, tname, default, docs.get(f.name, "")))
-    return out
+def get_scene(name: str) -> SceneInfo:
+    """The registered scene family ``name`` (KeyError naming the known ones otherwise)."""
+    all_ = scenes()
+    if name not in all_:
+        raise _unknown("scene", name, all_)
+    return all_[name]
 
 
-def _param_docs(doc: str) -> dict[str, str]:
-    """Parse a numpy-style ``Parameters`` section into ``{name: first line}``."""
-    lines = doc.splitlines()
-    out: dict[str, str] = {}
-    in_params = False
-    cur = None
-    for i, line in enumerate(lines):
-        s = line.strip()
-        if s in ("Parameters", "Attributes"):
-            in_params = True
-            continue
-        if in_params and set(s) == {"-"}:
-            continue
-        if in_params and s and i + 1 < len(lines) and set(lines[i + 1].strip()) == {"-"} \
-                and len(lines[i + 1].strip()) > 2:
-            break
-        if not in_params:
-            continue
-        indent = len(line) - len(line.lstrip())
-        if s and ":" in s and indent <= 4:
-            names = s.split(":")[0]
-            cur = [n.strip() for n in names.split(",")]
-            for n in cur:
-                out.setdefault(n, "")
-        elif s and cur:
-            for n in cur:
-                if not out[n]:
-                    out[n] = s
-    return out
+def make_scene(spec: Any) -> Any:
+    """A scene from ``NAME:key=value,...`` (``lattice:m=3,model=rpy``) or a params object.
+
+    Raises
+    ------
+    KeyError
+        Unknown scene name (the known ones are listed).
+    TypeError, ValueError
+        Unknown or invalid parameter (named).
+    """
+    if dataclasses.is_dataclass(spec) and not isinstance(spec, type):
+        for info in scenes().values():
+            if isinstance(spec, info.params):
+                return info.func(spec)
+        raise TypeError(f"no registered scene takes parameters of type {type(spec).__name__}")
+    name, raw = parse_spec(spec)
+    info = get_scene(name)
+    return info.func(make_params(name, info.params, raw))
+
+
+# ---------------------------------------------------------------------- stored sets
+@dataclass(frozen=True)
+class SetInfo:
+    """A stored set (HDF5 file) that a plugin ships.
+
+    Attributes
+    ----------
+    name : str
+        The set's name (the file stem, ``lattice-bim-m3``).
+    path : pathlib.Path
+        The ``.h5`` file.
+    problem : str
+        The problem family that reads it (``set-lattice-bim-m3``).
+    baselines : pathlib.Path or None
+        The E-MVP baseline file ``lcpbench check`` compares with.
+    """
+
+    name: str
+    path: Any
+    problem: str
+    baselines: Any = None
+
+
+def register_set(name: str, path: Any, *, problem: str, baselines: Any = None) -> None:
+    """Announce a stored set shipped by a plugin (read by ``lcpbench check`` and the report)."""
+    old = _SETS.get(name)
+    if old is not None and str(old.path) != str(path):
+        raise ValueError(f"stored set {name!r} is registered twice ({old.path} and {path}); "
+                         "rename one of the files")
+    _SETS[name] = SetInfo(name, path, problem, baselines)

@@ -15,6 +15,7 @@ import pandas as pd
 
 from lcpbench.workflows import fidelity
 
+from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.report import plots
 
 from lcpbench.report import tables
@@ -48,7 +49,7 @@ def _write_table(out: Path, name: str, df: pd.DataFrame) -> None:
     atomic_write(out / f"{name}.md", df.to_markdown(index=False) if not df.empty else "(no rows)\n")
 
 
-def render_report(path, baseline: str = "bb-pgd") -> Path:
+def render_report(path, baseline: str = BASELINE_SOLVER) -> Path:
     """Render ``DIR/report.html`` (and ``DIR/tables/*``) from the run store at ``path``.
 
     Parameters

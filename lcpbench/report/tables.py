@@ -11,6 +11,8 @@ import warnings
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.defaults import BASELINE_SOLVER
+
 __all__ = ["offline_table", "failures_table", "work_precision", "performance_profile",
            "online_table", "convergence_curves", "LEVELS", "solved_mask"]
 
@@ -169,7 +171,7 @@ def convergence_curves(results: pd.DataFrame, history: pd.DataFrame, x: str = "e
     return curves
 
 
-def online_table(results: pd.DataFrame, baseline: str = "bb-pgd") -> pd.DataFrame:
+def online_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
     """The paper's online table: total and collision-resolution seconds per scene and solver.
 
     Speedups are the baseline's times divided by the solver's (``-`` when

@@ -21,7 +21,6 @@ import os
 import platform
 import sys
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from typing import Callable, Optional
 
 import numpy as np
@@ -31,11 +30,13 @@ from lcpbench.core.api import run_solver
 from lcpbench.core.context import Budget
 from lcpbench.core.lcp import LCP
 from lcpbench.core.reference import reference as consensus_reference
-from lcpbench.core.registry import get_problem, get_solver, make_params
+from lcpbench.core.registry import get_problem, get_solver
+from lcpbench.core.specs import make_params
 from lcpbench.run.store import RunStore
-from lcpbench.run.sweep import RunSpec, Spec, Sweep
+from lcpbench.run.sweep import RunSpec, Spec, Sweep, per_low
+from lcpbench.core.clock import utc_now
 
-__all__ = ["Plan", "plan", "per_low", "result_fields", "execute", "perform", "instance_reference", "machine_info"]
+__all__ = ["Plan", "plan", "result_fields", "execute", "perform", "instance_reference", "machine_info"]
 
 #: Consensus references are computed for explicit instances up to this size.
 REFERENCE_MAX_N = 3000
@@ -64,22 +65,6 @@ def generate(spec: Spec) -> list[LCP]:
     return list(lcps)
 
 
-def per_low(spec: Spec, lcp: LCP) -> list[Spec]:
-    """A multi-fidelity solver spec that names no low operator, once per low of ``lcp``.
-
-    ``bi-pqn`` needs one low operator; on an instance with several (a stored
-    set with p3, p4 and RPY fidelities) the sweep runs it at each, as the
-    paper's table reports Bi-PQN per low fidelity. Specs that name their low
-    operator, and solvers without a ``low`` parameter, are returned as they are.
-    """
-    if "low" not in spec.params or "lows" in spec.params or spec.params["low"] \
-            or len(lcp.low) < 2:
-        return [spec]
-    given = tuple(kv for kv in spec.given if kv[0] != "low")
-    return [Spec(spec.name, given + (("low", k),), {**spec.params, "low": k})
-            for k in sorted(lcp.low)]
-
-
 def plan(sweep: Sweep, progress: bool = False) -> Plan:
     """Expand the sweep into runs (validating every spec first)."""
     solver_specs = sweep.solver_specs()
@@ -94,7 +79,7 @@ def plan(sweep: Sweep, progress: bool = False) -> Plan:
                 if info.multifidelity and not lcp.low:
                     skipped.append(f"{ss.label} on {ps.label}/{lcp.name}: no low-fidelity operator")
                     continue
-                for spec in (per_low(ss, lcp) if info.multifidelity else [ss]):
+                for spec in (per_low(ss, lcp.low) if info.multifidelity else [ss]):
                     for r in range(sweep.repeat):
                         runs.append(RunSpec(ps, i, lcp.name or str(i), spec, r, sweep.tol,
                                             sweep.stop, sweep.max_emvps))
@@ -138,7 +123,7 @@ def result_fields(res) -> dict:
 def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float] = None
             ) -> tuple[dict, pd.DataFrame]:
     """Solve one run and build its result row and history."""
-    started = _now()
+    started = utc_now()
     budget = Budget(max_emvps=run.max_emvps, max_seconds=timeout)
     res = run_solver(lcp, run.solver.name, stop=run.stop, tol=run.tol, budget=budget,
                      params=run.solver.values())
@@ -156,12 +141,8 @@ def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float
         row["ref_err_objective"] = abs(f - float(ref["objective"])) / max(
             1.0, abs(float(ref["objective"])))
         row["ref_solvers"] = ",".join(ref.get("solvers", []))
-    row["finished"] = _now()
+    row["finished"] = utc_now()
     return row, res.history
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _base_row(run: RunSpec, lcp: LCP) -> dict:
@@ -181,7 +162,7 @@ def _base_row(run: RunSpec, lcp: LCP) -> dict:
 def _failure_row(run: RunSpec, lcp: LCP, status: str, message: str) -> dict:
     row = _base_row(run, lcp)
     row.update({"status": status, "message": message, "solved": False,
-                "false_convergence": False, "started": _now(), "finished": _now()})
+                "false_convergence": False, "started": utc_now(), "finished": utc_now()})
     return row
 
 

@@ -29,12 +29,12 @@ import itertools
 import json
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Iterable, Optional
 
-from lcpbench.core.registry import get_problem, get_solver, make_params, parse_spec, problems, solvers, \
-    split_top_level
+from lcpbench.core.registry import get_problem, get_solver, problems, solvers
+from lcpbench.core.specs import make_params, parse_spec, split_top_level
 
-__all__ = ["Spec", "RunSpec", "Sweep", "expand", "load_config", "default_sweep"]
+__all__ = ["Spec", "RunSpec", "Sweep", "expand", "per_low", "load_config", "default_sweep"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,23 @@ class Spec:
     def values(self) -> dict:
         return dict(self.given)
 
+
+
+def per_low(spec: Spec, lows: Iterable[str]) -> list[Spec]:
+    """A multi-fidelity solver spec that names no low operator, once per low in ``lows``.
+
+    ``bi-pqn`` needs one low operator; on an instance with several (a stored
+    set with p3, p4 and RPY fidelities) the sweep runs it at each, as the
+    paper's table reports Bi-PQN per low fidelity. Specs that name their low
+    operator, solvers without a ``low`` parameter and instances with fewer than
+    two lows give ``[spec]``.
+    """
+    lows = sorted(lows)
+    if "low" not in spec.params or "lows" in spec.params or spec.params["low"] \
+            or len(lows) < 2:
+        return [spec]
+    given = tuple(kv for kv in spec.given if kv[0] != "low")
+    return [Spec(spec.name, given + (("low", k),), {**spec.params, "low": k}) for k in lows]
 
 def _is_list_type(tp: Any) -> bool:
     origin = typing.get_origin(tp)

@@ -37,7 +37,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -46,11 +45,13 @@ import numpy as np
 from lcpbench import __version__
 from lcpbench.core.context import Budget
 from lcpbench.core.operator import apply_uncounted
-from lcpbench.core.registry import solvers
+from lcpbench.core.registry import solvers, stored_sets
+from lcpbench.run.sweep import expand, per_low
+from lcpbench.core.clock import utc_now
 
 __all__ = ["check", "CheckRow", "default_specs", "load_baselines", "write_baselines",
            "resolve_sets", "format_table", "add_check_parser",
-           "cmd_check", "DEFAULT_BASELINE", "W_RTOL", "EMVP_SLACK", "BASELINE_FORMAT"]
+           "cmd_check", "default_baseline", "W_RTOL", "EMVP_SLACK", "BASELINE_FORMAT"]
 
 #: Relative tolerance on ``w`` against the stored reference.
 W_RTOL = 1e-6
@@ -61,14 +62,18 @@ BASELINE_FORMAT = "lcpbench.baselines"
 _BASELINE_VERSION = 1
 
 
-def _data_dir() -> Path:
-    from lcpbench.problems.stored import DATA_DIR
+def default_baseline() -> Path:
+    """The baseline file the shipped sets announce (see ``register_set``).
 
-    return DATA_DIR
-
-
-#: Default baseline file (next to the shipped sets).
-DEFAULT_BASELINE = _data_dir() / "baselines.json"
+    Raises
+    ------
+    ValueError
+        No registered set names a baseline file; pass ``--baseline FILE``.
+    """
+    for info in stored_sets().values():
+        if info.baselines:
+            return Path(info.baselines)
+    raise ValueError("no shipped set names a baseline file; pass --baseline FILE")
 
 
 # ----------------------------------------------------------------------------- baselines
@@ -161,9 +166,7 @@ def resolve_sets(names: Optional[Sequence[str]] = None) -> dict[str, Path]:
     ValueError
         A name that is neither a shipped set nor an existing file.
     """
-    from lcpbench.problems.stored import shipped_sets
-
-    shipped = shipped_sets()
+    shipped = {name: Path(info.path) for name, info in stored_sets().items()}
     if not names:
         return dict(shipped)
     out = {}
@@ -183,15 +186,11 @@ def default_specs(low_names: Sequence[str]) -> list[str]:
     """Every MVP-only, non-reference solver with its defaults, for a set with ``low_names``."""
     specs = []
     for name, info in solvers().items():
-        if name.startswith("test-") or info.reference or not info.mvp_only:
+        if not info.listed or info.reference or not info.mvp_only:
             continue
-        if info.multifidelity:
-            if not low_names:
-                continue
-            if name == "bi-pqn" and len(low_names) > 1:
-                specs.extend(f"{name}:low={k}" for k in low_names)
-                continue
-        specs.append(name)
+        if info.multifidelity and not low_names:
+            continue
+        specs.extend(s.label for s in per_low(expand(name, "solver")[0], low_names))
     return specs
 
 
@@ -219,7 +218,7 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     tol : float
         Paper stop-rule tolerance of every run and of the verified-residual check.
     baseline : str or Path, optional
-        Baseline file (default :data:`DEFAULT_BASELINE`).
+        Baseline file (default :func:`default_baseline`).
     update_baseline : bool
         Rewrite the baselines of the checked sets with this run's medians.
     solver_specs : list of str, optional
@@ -238,16 +237,16 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     ------
     ValueError
         Unknown set, bad baseline file, bad solver spec.
-    lcpbench.problems.stored.StoredSetError
+    lcpbench.sets.StoredSetError
         A set is truncated or corrupted.
     """
     from tqdm.auto import tqdm
 
-    from lcpbench.problems.stored import read_set
+    from lcpbench.sets import read_set
 
     from lcpbench.core.api import run_solver
 
-    path = Path(baseline) if baseline else DEFAULT_BASELINE
+    path = Path(baseline) if baseline else default_baseline()
     data = load_baselines(path)
     chosen = resolve_sets(sets)
     loaded = {name: read_set(p) for name, p in chosen.items()}
@@ -293,7 +292,7 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
             data["sets"].setdefault(r.set, {})[r.solver] = round(r.median_emvps, 6)
         data.update({"format": BASELINE_FORMAT, "version": _BASELINE_VERSION,
                      "lcpbench_version": __version__, "tol": float(tol),
-                     "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+                     "updated": utc_now()})
         write_baselines(path, data)
     return rows
 
@@ -337,7 +336,7 @@ def add_check_parser(sub) -> None:
 
 def cmd_check(args) -> int:
     """``lcpbench check``: exit 0 (no regression), 1 (regression) or 2 (usage/file error)."""
-    from lcpbench.problems.stored import StoredSetError
+    from lcpbench.sets import StoredSetError
 
     try:
         rows = check(args.set, tol=args.tol, baseline=args.baseline,
@@ -353,7 +352,7 @@ def cmd_check(args) -> int:
     print(format_table(rows))
     bad = [r for r in rows if r.regressed]
     new = [r for r in rows if r.baseline is None and not r.regressed]
-    base = args.baseline or DEFAULT_BASELINE
+    base = args.baseline or default_baseline()
     if args.update_baseline:
         print(f"\nbaselines of {len({r.set for r in rows})} set(s) written to {base}")
     elif new:

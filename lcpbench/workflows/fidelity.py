@@ -1,6 +1,6 @@
 """The fidelity study of stored sets: error and cost of each low fidelity, and Cottle's c(A).
 
-This reproduces, for any stored set (``problems/stored.py``), the paper's figure
+This reproduces, for any stored set (:mod:`lcpbench.sets`), the paper's figure
 "lofiMVPs" (heatmaps over the fidelity knobs ``(p, eps_gmres)`` of the log10 of the
 largest ``||A_low - A||_inf`` over the instances, and of how many low-fidelity MVPs
 cost as much as one high-fidelity MVP) and its appendix "Computing c(A)" (the share of
@@ -410,7 +410,7 @@ def _iter_instances(path_or_lcps, instances: Sequence[str] | None = None):
     from lcpbench.core.operator import dense_uncounted
 
     if isinstance(path_or_lcps, (str, Path)):
-        from lcpbench.problems.stored import instance_ids, read_instance
+        from lcpbench.sets import instance_ids, read_instance
 
         path = Path(path_or_lcps)
         ids = list(instances) if instances is not None else instance_ids(path)
@@ -646,6 +646,17 @@ def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
 
 
 # ---------------------------------------------------------------------- report section
+def _names_a_set_file(row, shipped: dict) -> bool:
+    """True when a result row's problem parameters name an ``.h5`` file or a shipped set."""
+    try:
+        params = json.loads(row.get("problem_params") or "{}")
+    except (TypeError, ValueError):
+        params = {}
+    if not isinstance(params, dict):
+        return False
+    return any(str(v).endswith(".h5") or str(v) in shipped for v in params.values())
+
+
 def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None]]:
     """The stored sets a run store's results used: ``[(path, instance ids or None)]``.
 
@@ -654,10 +665,11 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
     name is a shipped set, and of the shipped-set families ``set-<stem>``. Files that no
     longer exist are skipped.
     """
-    from lcpbench.problems.stored import (instance_ids, parse_instances, set_problem_name,
-                                          shipped_sets)
+    from lcpbench.core.registry import stored_sets
+    from lcpbench.sets import instance_ids, parse_instances
 
-    by_problem = {set_problem_name(stem): stem for stem in shipped_sets()}
+    shipped = {name: Path(info.path) for name, info in stored_sets().items()}
+    by_problem = {info.problem: name for name, info in stored_sets().items()}
 
     if results is None or results.empty or "problem" not in results:
         return []
@@ -667,7 +679,7 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
     for _, row in results[cols].drop_duplicates().iterrows():
         problem = str(row["problem"])
         kind = problem.split(":", 1)[0]
-        if kind not in ("stored", "set") and kind not in by_problem:
+        if kind not in by_problem and not _names_a_set_file(row, shipped):
             continue
         try:
             params = json.loads(row.get("problem_params") or "{}")
@@ -681,7 +693,7 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
             continue
         path = Path(name)
         if not path.exists():
-            path = shipped_sets().get(name, path)
+            path = shipped.get(name, path)
         if not path.exists():
             continue
         spec = str(params.get("instances") or "")
@@ -711,7 +723,7 @@ def fidelity_section(paths: Iterable) -> str:
     str
         ``""`` when no set has a low fidelity.
     """
-    from lcpbench.problems.stored import StoredSetError
+    from lcpbench.sets import StoredSetError
 
     from lcpbench.report.plots import prefix_ids
 

@@ -3,7 +3,7 @@
 The scene (e.g. ``lattice:m=3,model=rpy``) is simulated with one solver, one
 LCP per forward Euler step, exactly as ``lcpbench simulate`` does. For every
 chosen step the instance is written to an HDF5 set (layout of
-:mod:`lcpbench.problems.stored`):
+:mod:`lcpbench.sets`):
 
 * ``A``: the high-fidelity ``D' M D`` formed densely by ``n`` uncounted MVPs
   and symmetrised, ``(A + A') / 2`` (the boundary-integral mobility is only
@@ -13,7 +13,7 @@ chosen step the instance is written to an HDF5 set (layout of
   forces carried by pair identity), when there is one;
 * ``low/<name>/A`` for every requested fidelity, formed and symmetrised the
   same way, with ``cost_ratio = t_low / t_high`` (seconds per MVP measured on
-  this instance with :func:`~lcpbench.problems.suspension.contacts.measure_cost`)
+  this instance with :func:`~lcpbench.core.operator.measure_cost`)
   and the fidelity knobs (``model``, ``p``, ``eps_gmres``, ``t_mvp``);
 * ``reference``: the consensus of the QP solvers (:func:`lcpbench.reference`)
   on the dense ``A``, with its ``accepted`` flag;
@@ -47,8 +47,14 @@ import numpy as np
 from lcpbench import __version__
 from lcpbench.core.context import Budget
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import Operator, dense_uncounted
+from lcpbench.core.operator import Operator, dense_uncounted, measure_cost
+from lcpbench.core.api import run_solver
+from lcpbench.core.defaults import DEFAULT_SOLVER, EXAMPLE_SCENE
 from lcpbench.core.ranges import parse_ranges
+from lcpbench.core.reference import reference as consensus
+from lcpbench.core.registry import get_solver, make_scene
+from lcpbench.core.specs import make_params, parse_spec
+from lcpbench.sets import SetWriter, StoredSetError, instance_ids, read_instance
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
            "add_generate_parser", "cmd_generate", "GenerateSummary"]
@@ -110,11 +116,9 @@ def parse_lows(lows: Sequence[str], eps: Sequence[float] = ()) -> list[str]:
     Returns
     -------
     list of str
-        Names understood by :func:`~lcpbench.problems.suspension.contacts.parse_fidelity`,
-        in the given order, without repeats.
+        Low-fidelity names in the given order, without repeats (the scene validates
+        them: ``fidelity_knobs`` of its scene plugin).
     """
-    from lcpbench.problems.suspension.contacts import parse_fidelity
-
     suffixes = [_eps_suffix(float(e)) for e in eps]
     out: list[str] = []
     for item in lows:
@@ -132,7 +136,6 @@ def parse_lows(lows: Sequence[str], eps: Sequence[float] = ()) -> list[str]:
             if not names:
                 raise ValueError("--low is empty; use e.g. --low p=3,4 or --low rpy")
         for name in names:
-            parse_fidelity(name, 8, 1e-8)          # validates the name
             if name not in out:
                 out.append(name)
     return out
@@ -197,8 +200,6 @@ def _dense_sym(op: Operator) -> tuple[np.ndarray, float]:
 
 
 def _cost(op: Operator) -> float:
-    from lcpbench.problems.suspension.contacts import measure_cost
-
     return float(op.cost) if op.cost else float(measure_cost(op))
 
 
@@ -216,7 +217,7 @@ def _check_resume(f, path: Path, config: dict) -> None:
 
 
 def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, Path], *,
-             solver: str = "mono-pqn", lows: Sequence[str] = (), name: Optional[str] = None,
+             solver: str = DEFAULT_SOLVER, lows: Sequence[str] = (), name: Optional[str] = None,
              title: Optional[str] = None, description: Optional[str] = None,
              tol: float = 1e-8, stop: str = "paper", max_emvps: float = 5000.0,
              progress: bool = True, argv: Optional[Sequence[str]] = None,
@@ -256,19 +257,13 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     ------
     KeyError, TypeError, ValueError
         Bad scene, solver, step or fidelity; a file generated with other settings.
-    lcpbench.problems.stored.StoredSetError
+    lcpbench.sets.StoredSetError
         The existing file is truncated or corrupted (names instance and dataset).
     """
     import time
 
     from tqdm.auto import tqdm
 
-    from lcpbench.problems.stored import SetWriter, instance_ids, read_instance
-    from lcpbench.problems.suspension.scene import make_scene
-
-    from lcpbench.core.api import run_solver
-    from lcpbench.core.reference import reference as consensus
-    from lcpbench.core.registry import get_solver, make_params, parse_spec
 
     t_start = time.perf_counter()
     wanted = parse_steps(steps)
@@ -296,7 +291,7 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
         + f"--name {shlex.quote(name)} --out {shlex.quote(str(out))}")
     title = title or f"{name}: dense LCPs of {scene_spec}, steps {_steps_text(wanted)}"
     description = description or (
-        f"Scene {scene_spec} ({base.m ** 3} spheres, model {base.model}) simulated with "
+        f"Scene {scene_spec} ({scene.M} particles) simulated with "
         f"{solver} (stop {stop}, tol {tol:g}); for each stored step the dense high-fidelity "
         f"A = D'MD (n MVPs, symmetrised), b, the warm start, the low fidelities "
         f"{', '.join(lows) or 'none'} with cost_ratio = t_low / t_high measured on the "
@@ -375,8 +370,6 @@ def _steps_text(steps: Sequence[int]) -> str:
 def _write_step(w, scene, problem, k: int, scene_spec: str, lows: Sequence[str], consensus,
                 written: list, rejected: list) -> None:
     """Form and write the dense instance of step ``k``."""
-    from lcpbench.problems.suspension.contacts import parse_fidelity
-
     lcp = problem.lcp
     n = lcp.n
     P = scene.params
@@ -387,14 +380,14 @@ def _write_step(w, scene, problem, k: int, scene_spec: str, lows: Sequence[str],
         op = lcp.low[key]
         A_low, asym_low = _dense_sym(op)
         t_low = _cost(op) if n else 0.0
-        knobs = parse_fidelity(key, P.p, P.eps_gmres)
+        knobs = scene.fidelity_knobs(key)
         ratio = t_low / t_high if t_high > 0 else 1.0
         low[key] = (A_low, ratio, {**knobs, "t_mvp": t_low, "asymmetry": asym_low})
     ref = consensus(LCP(A, lcp.b, psd_check=False))
-    attrs = {"step": int(k), "M": int(scene.M), "t_mvp_high": float(t_high),
-             "scene": scene_spec, "model": P.model, "p": int(P.p),
-             "eps_gmres": float(P.eps_gmres), "dt": float(P.dt), "delta": float(P.delta),
-             "seed": int(P.seed), "asymmetry": asym, "family": "lattice"}
+    scalars = {key: v for key, v in dataclasses.asdict(P).items()
+               if isinstance(v, (bool, int, float, str)) and key not in ("low", "m")}
+    attrs = {**scalars, "step": int(k), "M": int(scene.M), "t_mvp_high": float(t_high),
+             "scene": scene_spec, "asymmetry": asym, "family": parse_spec(scene_spec)[0]}
     if lcp.meta.get("min_gap") is not None:
         attrs["min_gap"] = float(lcp.meta["min_gap"])
     x0 = lcp.x0 if lcp.x0 is not None and np.any(lcp.x0) else None
@@ -417,10 +410,10 @@ def add_generate_parser(sub) -> None:
                     "their measured cost ratios, the QP consensus reference and provenance to "
                     "an HDF5 set. Re-running into the same file resumes: instances already "
                     "in it are verified and kept.")
-    p.add_argument("--scene", default="lattice:m=3,model=rpy", metavar="NAME[:k=v,...]",
-                   help="scene spec (default lattice:m=3,model=rpy)")
-    p.add_argument("--solver", default="mono-pqn", metavar="NAME[:k=v,...]",
-                   help="solver that advances the simulation (default mono-pqn)")
+    p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
+                   help=f"scene spec (default {EXAMPLE_SCENE})")
+    p.add_argument("--solver", default=DEFAULT_SOLVER, metavar="NAME[:k=v,...]",
+                   help=f"solver that advances the simulation (default {DEFAULT_SOLVER})")
     p.add_argument("--steps", required=True, metavar="RANGE",
                    help="0-based steps to store, e.g. 31-50 or 0,3,5-7 (earlier steps are "
                         "simulated, not stored)")
@@ -460,7 +453,6 @@ def _parse_eps(text: str) -> list[float]:
 
 def cmd_generate(args) -> int:
     """``lcpbench generate``: exit 0, or 2 with one line for a usage or file error."""
-    from lcpbench.problems.stored import StoredSetError
 
     try:
         lows = parse_lows(args.low, _parse_eps(args.eps))

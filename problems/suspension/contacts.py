@@ -35,7 +35,6 @@ slightly asymmetric operator; ``lcp.meta["symmetrized"]`` says which).
 from __future__ import annotations
 
 import re
-import time
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Optional, Sequence, Union
 
@@ -44,13 +43,13 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import Operator, apply_uncounted
+from lcpbench.core.operator import Operator, measure_cost
 
 from .geometry import check_configuration, check_viscosity, pair_gaps
 
 __all__ = ["Contacts", "ContactProblem", "build_contact_problem", "contact_lcp",
            "resolve_mobility", "self_mobility", "parse_fidelity", "max_overlap",
-           "measure_cost"]
+]
 
 #: A mobility model: a name (``"rpy"``, ``"bim"``, ``"self"``) or a callable
 #: ``f(centers, radii) -> LinearOperator (6M, 6M)``.
@@ -324,23 +323,6 @@ class _DMD:
     def operator(self) -> LinearOperator:
         n = self.D.shape[1]
         return LinearOperator((n, n), matvec=self.matvec, rmatvec=self.matvec, dtype=np.float64)
-
-
-def measure_cost(op: Operator, min_seconds: float = 0.02, max_reps: int = 50) -> float:
-    """Seconds per product of ``op``, timed on uncounted products with a positive vector.
-
-    Repeats cheap products until ``min_seconds`` have passed (or ``max_reps``),
-    so microsecond operators get a stable estimate; an expensive one is timed once.
-    """
-    n = op.shape[1]
-    v = np.linspace(1.0, 2.0, n)
-    reps, t0 = 0, time.perf_counter()
-    while True:
-        apply_uncounted(op, v)
-        reps += 1
-        el = time.perf_counter() - t0
-        if el >= min_seconds or reps >= max_reps:
-            return max(el / reps, 1e-9)
 
 
 @dataclass

@@ -380,7 +380,7 @@ def default_quad_tol(eps_gmres: float) -> float:
 
     The quadrature error is then far below the GMRES tolerance and, for every
     p <= 16 and gap >= 0.1a, below the order-p discretisation error of the
-    density (DESIGN.md), so the pair split does not show in the result.
+    density (docs/mobility.md), so the pair split does not show in the result.
     Clamped to [1e-15, 1e-4].
     """
     return float(min(max(eps_gmres / 100.0, 1e-15), 1e-4))

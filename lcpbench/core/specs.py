@@ -1,0 +1,210 @@
+"""Solver, problem and scene specs: ``name:key=value,...`` strings and typed parameters.
+
+The CLI form of a choice is ``name:key=value,key=value``; a value in brackets is
+a list (``low=[p3,p4]``). :func:`parse_spec` splits a spec into its name and raw
+string values; :func:`make_params` converts them by the types of the plugin's frozen
+parameter dataclass (``int``, ``float``, ``bool``, ``str``, ``Literal[...]``,
+``Optional``, ``list``/``tuple``) and reports an unknown key or a bad value by name.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import typing
+from typing import Any, Optional
+
+__all__ = ["split_top_level", "parse_spec", "make_params", "describe_params"]
+
+
+def split_top_level(text: str, sep: str = ",") -> list[str]:
+    """Split on ``sep`` outside brackets: ``"a=1,b=[x,y]"`` -> ``["a=1", "b=[x,y]"]``."""
+    out, depth, cur = [], 0, []
+    for ch in text:
+        if ch in "[(":
+            depth += 1
+        elif ch in "])":
+            depth -= 1
+            if depth < 0:
+                raise ValueError(f"unbalanced bracket in {text!r}")
+        if ch == sep and depth == 0:
+            out.append("".join(cur))
+            cur = []
+        else:
+            cur.append(ch)
+    if depth != 0:
+        raise ValueError(f"unbalanced bracket in {text!r}")
+    out.append("".join(cur))
+    return [s.strip() for s in out if s.strip()]
+
+
+def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
+    """``"bi-pqn:low=p4,memory=10"`` -> ``("bi-pqn", {"low": "p4", "memory": "10"})``.
+
+    Values stay strings here; :func:`make_params` converts them by type.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"empty solver/problem spec {spec!r}; use NAME[:key=value,...]")
+    name, _, rest = spec.strip().partition(":")
+    raw: dict[str, str] = {}
+    for item in split_top_level(rest):
+        key, eq, val = item.partition("=")
+        key = key.strip().replace("-", "_")
+        if not eq or not key:
+            raise ValueError(f"malformed parameter {item!r} in {spec!r}; use key=value")
+        if key in raw:
+            raise ValueError(f"parameter {key!r} given twice in {spec!r}")
+        raw[key] = val.strip()
+    return name.strip(), raw
+
+
+_TRUE = {"true", "1", "yes", "on"}
+_FALSE = {"false", "0", "no", "off"}
+
+
+def _convert(owner: str, key: str, tp: Any, value: Any) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    what = f"parameter {key!r} of {owner!r}"
+    if origin is typing.Union:
+        non_none = [a for a in args if a is not type(None)]
+        if value is None or (isinstance(value, str) and value.lower() in ("none", "null", "")):
+            if type(None) in args:
+                return None
+        errors = []
+        for a in non_none:
+            try:
+                return _convert(owner, key, a, value)
+            except (TypeError, ValueError) as exc:
+                errors.append(str(exc))
+        raise TypeError(f"{what}: {value!r} matches none of {tp}: {'; '.join(errors)}")
+    if origin is typing.Literal:
+        for a in args:
+            if value == a or (isinstance(value, str) and str(a) == value):
+                return a
+        raise ValueError(f"{what} must be one of {', '.join(map(repr, args))}, got {value!r}")
+    if origin in (tuple, list):
+        item_t = args[0] if args else str
+        if isinstance(value, str):
+            s = value.strip()
+            if s.startswith("[") and s.endswith("]"):
+                s = s[1:-1]
+            items = split_top_level(s) if s else []
+        elif isinstance(value, (list, tuple)):
+            items = list(value)
+        else:
+            items = [value]
+        return tuple(_convert(owner, key, item_t, v) for v in items)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in _TRUE | _FALSE:
+            return value.lower() in _TRUE
+        raise TypeError(f"{what} expects true/false, got {value!r}")
+    if tp is int:
+        if isinstance(value, bool):
+            raise TypeError(f"{what} expects an integer, got {value!r}")
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, str):
+            try:
+                return int(value)
+            except ValueError:
+                try:
+                    f = float(value)
+                except ValueError:
+                    f = None
+                if f is not None and f.is_integer():
+                    return int(f)
+        raise TypeError(f"{what} expects an integer, got {value!r}")
+    if tp is float:
+        if isinstance(value, bool):
+            raise TypeError(f"{what} expects a number, got {value!r}")
+        if isinstance(value, (int, float)):
+            return float(value)
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                pass
+        raise TypeError(f"{what} expects a number, got {value!r}")
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise TypeError(f"{what} expects a string, got {value!r}")
+    if tp is Any or tp is object:
+        return value
+    if isinstance(value, tp):
+        return value
+    raise TypeError(f"{what}: cannot convert {value!r} to {tp}")
+
+
+def make_params(owner: str, cls: type, values: Optional[dict] = None):
+    """Build the frozen parameter dataclass ``cls`` from ``values``.
+
+    Strings are converted by the field's type hint; unknown keys and values of
+    the wrong type raise errors naming the parameter and the accepted values.
+    Fields may validate themselves further in ``__post_init__``.
+    """
+    values = dict(values or {})
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for key, val in values.items():
+        k = key.replace("-", "_")
+        if k not in fields:
+            close = difflib.get_close_matches(k, list(fields), n=2)
+            hint = f" Did you mean {', '.join(close)}?" if close else ""
+            valid = ", ".join(fields) or "(none)"
+            raise TypeError(f"unknown parameter {key!r} for {owner!r}.{hint} Valid: {valid}")
+        kwargs[k] = _convert(owner, k, hints[k], val)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise type(exc)(f"{owner}: {exc}") from None
+
+
+def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
+    """``(name, type, default, doc)`` for every parameter (docs from the class docstring)."""
+    hints = typing.get_type_hints(cls)
+    docs = _param_docs(cls.__doc__ or "")
+    out = []
+    for f in dataclasses.fields(cls):
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        tp = hints[f.name]
+        tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+        out.append((f.name, tname, default, docs.get(f.name, "")))
+    return out
+
+
+def _param_docs(doc: str) -> dict[str, str]:
+    """Parse a numpy-style ``Parameters`` section into ``{name: first line}``."""
+    lines = doc.splitlines()
+    out: dict[str, str] = {}
+    in_params = False
+    cur = None
+    for i, line in enumerate(lines):
+        s = line.strip()
+        if s in ("Parameters", "Attributes"):
+            in_params = True
+            continue
+        if in_params and set(s) == {"-"}:
+            continue
+        if in_params and s and i + 1 < len(lines) and set(lines[i + 1].strip()) == {"-"} \
+                and len(lines[i + 1].strip()) > 2:
+            break
+        if not in_params:
+            continue
+        indent = len(line) - len(line.lstrip())
+        if s and ":" in s and indent <= 4:
+            names = s.split(":")[0]
+            cur = [n.strip() for n in names.split(",")]
+            for n in cur:
+                out.setdefault(n, "")
+        elif s and cur:
+            for n in cur:
+                if not out[n]:
+                    out[n] = s
+    return out

@@ -1,0 +1,76 @@
+"""The framework never reaches into its plugins: no imports of them, no plugin names in its code."""
+
+import ast
+from pathlib import Path
+
+import lcpbench
+from lcpbench.core.registry import scenes, solvers
+
+FRAMEWORK = Path(lcpbench.__file__).resolve().parent
+
+
+def _modules():
+    return sorted(p for p in FRAMEWORK.rglob("*.py"))
+
+
+def _docstring_nodes(tree):
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                out.add(id(body[0].value))
+    return out
+
+
+def test_framework_modules_exist():
+    # the package this test reads is the installed framework, and it has its parts
+    names = {p.relative_to(FRAMEWORK).parts[0] for p in _modules()}
+    assert {"core", "toolkit", "run", "report", "cli", "workflows", "sets"} <= names
+
+
+def test_no_framework_module_imports_a_plugin():
+    bad = []
+    for path in _modules():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                mods = [node.module or ""]
+                if node.module == "lcpbench":
+                    mods += [f"lcpbench.{a.name}" for a in node.names]
+            else:
+                continue
+            for m in mods:
+                if m.split(".")[0] in ("problems", "solvers") or \
+                        m.startswith(("lcpbench.problems", "lcpbench.solvers")):
+                    bad.append(f"{path.relative_to(FRAMEWORK)}:{node.lineno} imports {m}")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_framework_code_names_a_plugin():
+    """Solver and scene names appear in framework code only in ``core/defaults.py``.
+
+    (The QP back-ends of qpsolvers, such as ``clarabel``, are library names: the framework
+    calls qpsolvers with them for its consensus references.)
+    """
+    import qpsolvers
+
+    plugin_names = set(solvers()) | set(scenes())
+    assert {"mono-pqn", "bi-pqn", "bb-pgd", "lattice"} <= plugin_names   # plugins are loaded
+    plugin_names -= set(qpsolvers.available_solvers)
+    bad = []
+    for path in _modules():
+        if path.relative_to(FRAMEWORK).as_posix() == "core/defaults.py":
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        docs = _docstring_nodes(tree)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                    and id(node) not in docs:
+                text = node.value.strip()
+                name = text.split(":", 1)[0]
+                if name in plugin_names and (text == name or ":" in text) and " " not in text:
+                    bad.append(f"{path.relative_to(FRAMEWORK)}:{node.lineno} names {text!r}")
+    assert not bad, "\n".join(bad)
