@@ -14,7 +14,8 @@ from lcpbench.cli import main
 from lcpbench.problems.suspension.contacts import (
     Contacts, build_contact_problem, contact_lcp, max_overlap, parse_fidelity)
 from lcpbench.problems.suspension.scene import (
-    LatticeParams, LatticeScene, bisect_scale, make_scene)
+    LatticeParams, LatticeScene, bisect_scale)
+from lcpbench.core.registry import make_scene
 from lcpbench.workflows.simulate import simulate
 from lcpbench.report.tables import online_table
 
@@ -346,8 +347,11 @@ def test_simulate_rows_and_report_table(tmp_path):
     table = online_table(res, "bb-pgd")
     assert set(table["solver"]) == {"bb-pgd", "bi-pqn:low=self"}
     assert (table["steps"] == 10).all()
-    with pytest.raises(ValueError, match="already holds the simulation"):
-        simulate(scene, "bb-pgd", 2, tmp_path, progress=False)
+    with pytest.raises(ValueError, match=r"under other settings \(stop\)"):
+        simulate(scene, "bb-pgd", 2, tmp_path, progress=False)      # stop="paper" now
+    again = simulate(scene, ["bb-pgd", "bi-pqn:low=self"], 10, tmp_path, progress=False,
+                     stop="kkt")                                     # finished: nothing to do
+    assert len(again) == 20 and len(pd.read_csv(tmp_path / "results.csv")) == 20
     cold = simulate(scene, "bb-pgd", 10, tmp_path, progress=False, stop="kkt",
                     warm_start=False)
     assert set(cold["solver"]) == {"bb-pgd (cold)"}

@@ -16,6 +16,12 @@ it apart from the warm-started one. ``info``
 holds the rest (setup and update seconds, mobility solves outside the counted
 MVPs, warm-start entries, overlap check).
 
+Resuming: after every step the simulation's state is checkpointed (see
+:mod:`lcpbench.workflows.checkpoint`) before its row is written, so rerunning the same
+command after a kill continues each simulation from its last finished step, and every
+step appears exactly once in ``results.csv``; a larger ``steps`` extends finished
+simulations. SIGTERM stops the run between two steps' writes with :class:`Interrupted`.
+
 Physical sanity: a step whose overlap exceeds ``overlap_tol`` (a fraction of
 the smallest radius) is flagged in ``message`` and ``info``; for frictionless
 spheres the linearised constraint is conservative (the true gap is at least
@@ -27,8 +33,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import signal
 import sys
-from datetime import datetime, timezone
+import threading
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -36,19 +43,23 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.core.context import Budget
-from lcpbench.core.registry import get_solver, make_params, parse_spec
+from lcpbench.core.registry import get_solver
+from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.core.residuals import make_stop_rule
 from lcpbench.run.runner import result_fields
 from lcpbench.run.store import RunStore
+from lcpbench.core.clock import utc_now
+from lcpbench.workflows.checkpoint import (Checkpoint, checkpoint_path, load_checkpoint,
+                                           save_checkpoint)
 
-__all__ = ["simulate", "DEFAULT_OVERLAP_TOL"]
+__all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "Interrupted"]
+
+
+class Interrupted(RuntimeError):
+    """The simulation was stopped by SIGTERM; every finished step is stored and resumable."""
 
 #: Default overlap tolerance, as a fraction of the smallest radius.
 DEFAULT_OVERLAP_TOL = 1e-2
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _check_solver(spec: str, has_low: bool, scene_spec: str):
@@ -67,6 +78,14 @@ def _check_solver(spec: str, has_low: bool, scene_spec: str):
 
 def _run_id(scene: str, solver: str, warm: bool, step: int) -> str:
     return f"online|{scene}|{solver}|warm={int(warm)}|step={step:05d}"
+
+
+def _sim_key(scene: str, solver: str, warm: bool) -> str:
+    return f"online|{scene}|{solver}|warm={int(warm)}"
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted("stopped by SIGTERM")
 
 
 def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int,
@@ -89,7 +108,8 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         Time steps per simulation (>= 1).
     out_dir : str or Path
         Run-store folder (created if missing). Several scenes may be simulated
-        into one folder; a scene/solver pair already in it is an error.
+        into one folder. A scene/solver pair already in it resumes from its last
+        finished step (same settings required; a larger ``steps`` extends it).
     warm_start : bool
         Start each solve from the previous step's forces matched by pair identity.
     progress : bool
@@ -111,11 +131,13 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     KeyError, TypeError, ValueError
         Unknown scene or solver, bad parameter, ``steps < 1``, a solver that
         needs low-fidelity operators on a scene without them, or a scene/solver
-        pair already stored in ``out_dir``. All checked before any step runs.
+        pair stored in ``out_dir`` with other settings. All checked before any step runs.
+    Interrupted
+        SIGTERM arrived; the finished steps are stored, the same call resumes.
     """
     from tqdm.auto import tqdm
 
-    from lcpbench.problems.suspension.scene import make_scene
+    from lcpbench.core.registry import make_scene
 
     from lcpbench.run.runner import git_commit, machine_info
 
@@ -142,10 +164,25 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     store = RunStore(out_dir)
     with store.lock():
         done = store.done_ids()
+        resumed = {}
         for s in specs:
-            if _run_id(scene_spec, s, warm_start, 0) in done:
-                raise ValueError(f"{store.path} already holds the simulation of {scene_spec!r} "
-                                 f"with {s!r}; choose another --out or another scene/solver")
+            settings = _settings(scene_spec, s, tol, stop, warm_start, max_emvps, max_seconds,
+                                 overlap_tol)
+            path = checkpoint_path(store.path, _sim_key(scene_spec, s, warm_start))
+            if path.exists():
+                ckpt = load_checkpoint(path)
+                if ckpt.config != settings:
+                    changed = sorted(k for k in settings if settings[k] != ckpt.config.get(k))
+                    raise ValueError(f"{store.path} holds the simulation of {scene_spec!r} with "
+                                     f"{s!r} under other settings ({', '.join(changed)}); rerun "
+                                     "with the same settings to resume, or choose another --out")
+                resumed[s] = (path, ckpt)
+            elif _run_id(scene_spec, s, warm_start, 0) in done:
+                raise ValueError(f"{store.path} holds rows of the simulation of {scene_spec!r} "
+                                 f"with {s!r} but no checkpoint to resume from; choose another "
+                                 "--out")
+            else:
+                resumed[s] = (path, None)
         old = store.read_meta() or {}
         config = {"scene": scene_spec, "solvers": specs, "steps": int(steps), "tol": tol,
                   "stop": stop, "warm_start": bool(warm_start), "max_emvps": max_emvps,
@@ -153,38 +190,77 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
                   "scene_params": dataclasses.asdict(probe.params)}
         meta = dict(old)
         meta.update({"argv": list(argv) if argv is not None else meta.get("argv", []),
-                     "command": "simulate", "started": _now(), "finished": None,
+                     "command": "simulate", "started": utc_now(), "finished": None,
                      "machine": machine_info(), "git_commit": git_commit()})
         meta.setdefault("config", config)
         sims = list(meta.get("simulations", []))
-        sims.append(config)
+        if json.dumps(config, sort_keys=True, default=str) not in \
+                {json.dumps(c, sort_keys=True, default=str) for c in sims}:
+            sims.append(config)
         meta["simulations"] = sims
         store.write_meta(meta)
         frames = []
-        for spec in specs:
-            scene = probe if spec == specs[0] else make_scene(scene_spec)
-            name, info = infos[spec]
-            frames.append(_one_simulation(
-                store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
-                tol, stop, budget, overlap_tol, progress, tqdm))
-        meta["finished"] = _now()
+        in_main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, _raise_interrupted) if in_main else None
+        try:
+            for spec in specs:
+                scene = probe if spec == specs[0] else make_scene(scene_spec)
+                name, info = infos[spec]
+                path, ckpt = resumed[spec]
+                settings = _settings(scene_spec, spec, tol, stop, warm_start, max_emvps,
+                                     max_seconds, overlap_tol)
+                frames.append(_one_simulation(
+                    store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
+                    tol, stop, budget, overlap_tol, progress, tqdm, path, ckpt, settings))
+        except Interrupted:
+            raise Interrupted(f"stopped by SIGTERM; every finished step is in {store.path}, "
+                              "run the same command again to resume") from None
+        finally:
+            if in_main:
+                signal.signal(signal.SIGTERM, previous)
+        meta["finished"] = utc_now()
         store.write_meta(meta)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
+def _settings(scene_spec: str, spec: str, tol: float, stop: str, warm: bool, max_emvps,
+              max_seconds, overlap_tol: float) -> dict:
+    """What a resumed simulation must share with the one it continues (not the step count)."""
+    return {"scene": scene_spec, "solver": spec, "tol": float(tol), "stop": stop,
+            "warm_start": bool(warm), "max_emvps": max_emvps, "max_seconds": max_seconds,
+            "overlap_tol": float(overlap_tol)}
+
+
 def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, spec: str,
                     name: str, info, steps: int, warm_start: bool, tol: float, stop: str,
-                    budget: Budget, overlap_tol: float, progress: bool, tqdm) -> pd.DataFrame:
+                    budget: Budget, overlap_tol: float, progress: bool, tqdm, ckpt_path: Path,
+                    ckpt: Optional[Checkpoint], settings: dict) -> pd.DataFrame:
     rule = make_stop_rule(stop, tol)
     limit = overlap_tol * float(np.min(scene.radii))
     solver_params = json.dumps(parse_spec(spec)[1], sort_keys=True)
     problem_params = json.dumps(dataclasses.asdict(scene.params), sort_keys=True, default=str)
-    rows = []
-    bar = tqdm(total=steps, desc=f"{scene_spec} | {spec}", disable=not progress,
-               file=sys.stderr, leave=False)
+    prefix = _sim_key(scene_spec, spec, warm_start) + "|"
+    if ckpt is not None:
+        if ckpt.row["run_id"] not in store.done_ids():   # killed between checkpoint and row
+            store.append(ckpt.row, ckpt.history)
+        scene.set_state(ckpt.scene_state)
+        if ckpt.finished:
+            print(f"lcpbench simulate: {spec}: the simulation stopped at step {ckpt.step} "
+                  f"({ckpt.row.get('message', '')}); nothing to resume", file=sys.stderr)
+            return _stored_rows(store, prefix)
+
+    def commit(row: dict, history, finished: bool) -> None:
+        save_checkpoint(ckpt_path, Checkpoint(step=int(row["step"]), config=settings,
+                                              scene_state=scene.get_state(), row=row,
+                                              history=history, finished=finished))
+        store.append(row, history)
+
+    bar = tqdm(total=steps, initial=min(scene.step_index, steps),
+               desc=f"{scene_spec} | {spec}", disable=not progress, file=sys.stderr,
+               leave=False)
     try:
-        for _ in range(steps):
-            started = _now()
+        while scene.step_index < steps:
+            started = utc_now()
             k = scene.step_index
             try:
                 rec = scene.step(spec, tol=tol, stop=stop, budget=budget,
@@ -193,9 +269,8 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                 row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, k, tol,
                                 rule.kind, solver_params, problem_params)
                 row.update({"status": "failed", "message": f"simulation stopped: {exc}",
-                            "solved": False, "started": started, "finished": _now()})
-                store.append(row)
-                rows.append(row)
+                            "solved": False, "started": started, "finished": utc_now()})
+                commit(row, None, finished=True)
                 print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
                 break
             res = rec.result
@@ -217,14 +292,22 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                 **result_fields(res), "sim_total_s": rec.total_s,
                 "max_overlap": rec.max_overlap,
                 "info": json.dumps(extra, sort_keys=True, default=str),
-                "started": started, "finished": _now()})
-            store.append(row, res.history)
-            rows.append(row)
+                "started": started, "finished": utc_now()})
+            commit(row, res.history, finished=False)
             bar.set_postfix(n=rec.n, emvps=f"{res.emvps:.1f}", status=res.status.value)
             bar.update(1)
     finally:
         bar.close()
-    return pd.DataFrame(rows)
+    return _stored_rows(store, prefix)
+
+
+def _stored_rows(store: RunStore, prefix: str) -> pd.DataFrame:
+    """Every stored row of one simulation, in step order (resumed runs included)."""
+    res = store.results()
+    if res.empty:
+        return res
+    mine = res[res["run_id"].astype(str).str.startswith(prefix)]
+    return mine.sort_values("step").reset_index(drop=True)
 
 
 def _row_base(scene_spec: str, scene_name: str, spec: str, name: str, info, warm: bool,

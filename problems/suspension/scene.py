@@ -40,18 +40,18 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Optional, Union
+from typing import Any, Optional
 
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from lcpbench.core.registry import make_params, parse_spec
+from lcpbench.core.registry import make_scene, register_scene
 
 from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
 from .geometry import pair_gaps
 
 __all__ = ["LatticeParams", "LatticeScene", "StepRecord", "lattice_configuration",
-           "bisect_scale", "make_scene", "SCENES"]
+           "bisect_scale", "lattice"]
 
 
 @dataclass(frozen=True)
@@ -329,6 +329,38 @@ class LatticeScene:
             raise ValueError(f"{spec!r} is not a lattice scene")
         return scene
 
+    def get_state(self) -> dict:
+        """The state that evolves from step to step, as arrays (for simulation checkpoints).
+
+        Everything else (radii, parameters) follows from ``params``, so
+        ``set_state(get_state())`` on a scene made from the same parameters continues the
+        same trajectory.
+        """
+        return {"centers": self.centers.copy(), "orientations": self.orientations.copy(),
+                "step_index": np.array(self.step_index), "prev_pairs": self._prev_pairs.copy(),
+                "prev_x": self._prev_x.copy()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore what :meth:`get_state` returned (a ``ValueError`` names a mismatch)."""
+        centers = np.asarray(state["centers"], dtype=np.float64)
+        if centers.shape != self.centers.shape:
+            raise ValueError(f"scene state has {centers.shape[0]} spheres, this scene "
+                             f"{self.M}: it was saved by a scene with other parameters")
+        self.centers = centers
+        self.orientations = np.asarray(state["orientations"], dtype=np.float64)
+        self.step_index = int(state["step_index"])
+        self._prev_pairs = np.asarray(state["prev_pairs"], dtype=np.intp).reshape(-1, 2)
+        self._prev_x = np.asarray(state["prev_x"], dtype=np.float64)
+        self._problem = None
+
+    def fidelity_knobs(self, name: str) -> dict:
+        """The knobs of low-fidelity ``name`` at this scene's order and tolerance.
+
+        ``{"model": "bim", "p": 4, "eps_gmres": 1e-6}`` for ``p4e6``; ``rpy`` and
+        ``self`` name the analytic models. Raises ``ValueError`` for an unknown name.
+        """
+        return parse_fidelity(name, self.params.p, self.params.eps_gmres)
+
     @property
     def M(self) -> int:
         """Number of spheres."""
@@ -448,25 +480,7 @@ class LatticeScene:
                 f"gamma={self.gamma:.4g} initial_pairs={self.initial_pairs}>")
 
 
-#: Scene families: name -> (parameter dataclass, factory from parameters).
-SCENES: dict[str, tuple[type, Any]] = {"lattice": (LatticeParams, LatticeScene.from_params)}
-
-
-def make_scene(spec: Union[str, LatticeParams]) -> LatticeScene:
-    """A scene from ``NAME:key=value,...`` (e.g. ``lattice:m=3,model=rpy``).
-
-    Raises
-    ------
-    KeyError
-        Unknown scene name (the known ones are listed).
-    TypeError, ValueError
-        Unknown or invalid parameter (named).
-    """
-    if isinstance(spec, LatticeParams):
-        return LatticeScene.from_params(spec)
-    name, raw = parse_spec(spec)
-    if name not in SCENES:
-        raise KeyError(f"unknown scene {name!r}; known: {', '.join(sorted(SCENES))} "
-                       "(e.g. lattice:m=3,model=rpy)")
-    cls, factory = SCENES[name]
-    return factory(make_params(name, cls, raw))
+@register_scene("lattice", LatticeParams)
+def lattice(params: LatticeParams) -> LatticeScene:
+    """Spheres on an m x m x m lattice packed by an inward pull (the paper's appendix scene)."""
+    return LatticeScene(params=params)
