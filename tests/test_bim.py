@@ -15,6 +15,7 @@ from lcpbench.problems.suspension.bim import (
 )
 from lcpbench.problems.suspension.kernels import unit_field
 from lcpbench.problems.suspension.sphere_vsh import (
+    _sample_basis,
     expansion_coefficients,
     grid_levels,
     quadrature_errors,
@@ -95,7 +96,6 @@ def test_exterior_expansion_matches_quadrature_and_jump():
     I = np.empty((p + 3, p + 3), dtype=complex)
     u, G, gP = np.empty(3), np.empty((3, 3)), np.empty(3)
     # fine quadrature of the interpolated density (order 30 grid)
-    from problems.suspension.sphere_vsh import _sample_basis
     Bq, _ = _sample_basis(p, 30)
     gq = sphere_grid(30)
     f = gq.weights[:, None] * (Bq @ (b.A @ sig)).reshape(-1, 3)
