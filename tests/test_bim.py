@@ -13,8 +13,9 @@ from lcpbench.problems.suspension.bim import (
     BimMobility,
     bim_mobility,
 )
-from lcpbench.problems.suspension.kernels import unit_field
+from lcpbench.problems.suspension.harmonics import unit_field
 from lcpbench.problems.suspension.sphere_vsh import (
+    _sample_basis,
     expansion_coefficients,
     grid_levels,
     quadrature_errors,
@@ -95,7 +96,6 @@ def test_exterior_expansion_matches_quadrature_and_jump():
     I = np.empty((p + 3, p + 3), dtype=complex)
     u, G, gP = np.empty(3), np.empty((3, 3)), np.empty(3)
     # fine quadrature of the interpolated density (order 30 grid)
-    from problems.suspension.sphere_vsh import _sample_basis
     Bq, _ = _sample_basis(p, 30)
     gq = sphere_grid(30)
     f = gq.weights[:, None] * (Bq @ (b.A @ sig)).reshape(-1, 3)
@@ -281,7 +281,7 @@ def test_levels_and_blocks_agree_with_all_expansions():
     # node sampling for both, so that only the quadrature split differs (the projected
     # near field differs from node sampling by the order-p discretisation error)
     A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3, near_upsample=1)
-    assert A.n_block_pairs > 0 and A._fly_idx.size > 0 and A.n_far_pairs > 0
+    assert A.n_block_pairs > 0 and A.plan.fly_idx.size > 0 and A.n_far_pairs > 0
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= 2
     s = np.random.default_rng(0).standard_normal(A.M * 3 * A._N)
     s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
@@ -353,7 +353,7 @@ def test_projected_blocks_equal_on_the_fly_projection():
     ft = np.random.default_rng(4).standard_normal(30)
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
     B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0)
-    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B._fly_idx.size > 0
+    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
 

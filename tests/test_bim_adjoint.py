@@ -43,7 +43,7 @@ def _dot_error(lhs: float, rhs: float) -> float:
 
 def _check_structure(A: BimMobility, min_levels: int) -> None:
     assert A.n_block_pairs > 0, "no stored near blocks"
-    assert A._fly_idx.size > 0, "no on-the-fly expansion pairs"
+    assert A.plan.fly_idx.size > 0, "no on-the-fly expansion pairs"
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= min_levels, A.pairs_per_level
 
 
@@ -58,10 +58,11 @@ def test_pieces_are_transposes(p, eps):
     n = A.M * 3 * A._N
     x, y = rng.standard_normal(n), rng.standard_normal(n)
     u = rng.standard_normal(6 * A.M)
-    assert _dot_error(y @ A._apply_bie(x), A._apply_bie_adjoint(y) @ x) <= 1e-12
-    assert _dot_error(u @ A.velocities(x).reshape(-1), A.velocities_adjoint(u) @ x) <= 1e-12
-    assert _dot_error(y @ A._precondition(x), A._precondition_adjoint(y) @ x) <= 1e-12
-    assert _dot_error(y @ A.rhs(u), A.rhs_adjoint(y) @ u) <= 1e-12
+    T = A.adjoint_pieces
+    assert _dot_error(y @ A._apply_bie(x), T.apply_bie(y) @ x) <= 1e-12
+    assert _dot_error(u @ A.velocities(x).reshape(-1), T.velocities(u) @ x) <= 1e-12
+    assert _dot_error(y @ A._precondition(x), T.precondition(y) @ x) <= 1e-12
+    assert _dot_error(y @ A.rhs(u), T.rhs(y) @ u) <= 1e-12
 
 
 def test_pieces_with_coarse_grids_and_node_sampling():
@@ -73,7 +74,7 @@ def test_pieces_with_coarse_grids_and_node_sampling():
     rng = np.random.default_rng(11)
     n = A.M * 3 * A._N
     x, y = rng.standard_normal(n), rng.standard_normal(n)
-    assert _dot_error(y @ A._apply_bie(x), A._apply_bie_adjoint(y) @ x) <= 1e-12
+    assert _dot_error(y @ A._apply_bie(x), A.adjoint_pieces.apply_bie(y) @ x) <= 1e-12
 
 
 @pytest.mark.parametrize("p", [4, 6])
@@ -135,7 +136,7 @@ def test_fmm_adjoint_dot_product():
     rg = np.random.default_rng(9)
     n = F.M * 3 * F._N
     s, t = rg.standard_normal(n), rg.standard_normal(n)
-    assert _dot_error(t @ F._apply_bie(s), F._apply_bie_adjoint(t) @ s) <= 1e-11
+    assert _dot_error(t @ F._apply_bie(s), F.adjoint_pieces.apply_bie(t) @ s) <= 1e-11
     x, y = rg.standard_normal(6 * F.M), rg.standard_normal(6 * F.M)
     assert _dot_error(y @ (F @ x), F.rmatvec(y) @ x) <= 1e-8
     D = BimMobility(c, r, p=4, eps_gmres=1e-9, mu=1.3, near_block_mb=0.2)

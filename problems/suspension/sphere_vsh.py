@@ -37,7 +37,7 @@ from math import factorial
 
 import numpy as np
 
-from .kernels import vsh_at
+from .harmonics import vsh_at
 
 __all__ = ["SphereGrid", "VSHBasis", "SelfOperators", "sphere_grid", "vsh_basis",
            "self_operators", "s_eigenvalue", "traction_eigenvalue", "knm_table",
@@ -366,7 +366,7 @@ def expansion_coefficients(p: int, sigma: np.ndarray) -> np.ndarray:
     -------
     D : complex ndarray, shape (M, 5, p+1, p+1)
         Coefficients of the harmonics Phi, chi, P_alpha, P_beta and P used by
-        :func:`kernels.unit_field` (for the single layer with mu = 1 on the unit
+        :func:`harmonics.unit_field` (for the single layer with mu = 1 on the unit
         sphere; the density's own units carry through).
     """
     sigma = np.asarray(sigma, dtype=float)

@@ -1,0 +1,252 @@
+"""Exact transposes of the pieces of the boundary-integral mobility (``BimMobility.rmatvec``).
+
+The mobility is ``M = R P G^{-1} Bt`` with ``Bt`` = :meth:`bim.BimMobility.rhs`, ``G v =
+A_bie(P v)`` (``A_bie`` the traction operator, ``P`` the one-body preconditioner) and ``R``
+the read-off of the rigid velocities, so ``M' = Bt' G^{-T} P' R'`` with ``G' = P' A_bie'``.
+Every piece here is the exact transpose of the discrete forward piece at full accuracy:
+the self operators and the read-off as dense per-sphere matrices, the stored near blocks
+as they are, the on-the-fly expansions, the Faxen read-off and the direct sums by the
+transposed compiled kernels (:mod:`kernels_adjoint`), and with ``far="fmm"`` the FMM sum
+by a stresslet FMM.  The extra memory is one complex array of ``5 (p+1)^2`` coefficients
+per sphere (0.8 MB at M = 125, p = 8), a few ``3N x 3N`` one-sphere matrices and index
+arrays, built on first use; no per-pair matrices.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .bim_pairs import csr
+from .kernels import PARALLEL_WORK, dense_rows
+from .kernels_adjoint import (
+    apply_blocks_adjoint,
+    apply_blocks_adjoint_serial,
+    center_readout_adjoint,
+    direct_traction_adjoint,
+    direct_traction_adjoint_serial,
+    direct_traction_adjoint_skip,
+    traction_expansion_adjoint,
+)
+from .sphere_vsh import _coefficient_matrix, sphere_grid
+
+if TYPE_CHECKING:
+    from .bim import BimMobility
+
+__all__ = ["AdjointPieces"]
+
+
+def _group_ranges(ptr: np.ndarray, start: np.ndarray, stop: np.ndarray, n_per: int) -> dict:
+    """Regroup per-target source ranges (``ptr, start, stop`` as in ``PairPlan.dir_ranges``:
+    target sphere i sums ``start[k]:stop[k]`` for k in ``ptr[i]:ptr[i+1]``) by source
+    range, for the transposed sums (:func:`kernels_adjoint.direct_traction_adjoint`)."""
+    triples = sorted((int(start[k]), int(stop[k]), i)
+                     for i in range(ptr.size - 1) for k in range(ptr[i], ptr[i + 1]))
+    starts = np.array([t[0] for t in triples], dtype=np.int64)
+    first = (np.nonzero(np.r_[True, starts[1:] != starts[:-1]])[0] if triples
+             else np.zeros(0, dtype=np.int64))
+    return {"start": starts[first],
+            "stop": np.array([triples[k][1] for k in first], dtype=np.int64),
+            "ptr": np.r_[first, len(triples)].astype(np.int64),
+            "tgt": np.array([t[2] for t in triples], dtype=np.int64),
+            "work": n_per * sum(b - a for a, b, _ in triples)}
+
+
+def fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.ndarray,
+                         eps: float) -> np.ndarray:
+    """Transpose of :func:`fmm.fmm_traction` (points are sources and targets alike).
+
+    The traction at ``x_k`` (normal ``n_k``) of a point force ``f`` at ``y`` is
+    ``-(3/4 pi) (r.n_k) r (r.f) / |r|^5`` with ``r = x_k - y``; its transpose, the adjoint
+    force at ``y`` of adjoint tractions ``b_k``, is ``(3/4 pi) sum_k r' (r'.b_k)(r'.n_k) /
+    |r'|^5`` with ``r' = y - x_k``: the velocity of stresslets of strength ``b_k`` and
+    orientation ``n_k``, which is fmm3dpy's stresslet normalisation (checked against the
+    direct sum to 1e-15).  Self points are excluded, as in the forward FMM.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Adjoint point forces at every point.
+    """
+    import fmm3dpy
+
+    out = fmm3dpy.stfmm3d(eps=float(max(eps, 1e-15)), sources=np.ascontiguousarray(points.T),
+                          strslet=np.ascontiguousarray(trac_bar.T),
+                          strsvec=np.ascontiguousarray(normals.T), ifppreg=1)
+    return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)
+
+
+class AdjointPieces:
+    """Transposed pieces of one :class:`bim.BimMobility` (structures built once).
+
+    Parameters
+    ----------
+    op : BimMobility
+        The forward operator; its pair set-up is reused as it is.
+    """
+
+    def __init__(self, op: BimMobility) -> None:
+        self.op = op
+        plan = op.plan
+        so = op.self_ops
+        self.self_block = np.ascontiguousarray(so.Kp + so.L)
+        self.precond = np.ascontiguousarray(so.precond)
+        self.analysis = np.ascontiguousarray(op.basis.A)
+        self.read = np.ascontiguousarray(op.readout)
+        self.proj = None if plan.near_proj is None else np.ascontiguousarray(plan.near_proj)
+        self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in plan.synth]
+        self.tgt = tuple(np.ascontiguousarray(a[:, k]) for a in (op.tgt_pts, op.tgt_nrm)
+                         for k in range(3))
+        Cm = _coefficient_matrix(op.p)                          # (3N, 5 (p+1)^2), D = s @ Cm
+        self.coef = np.ascontiguousarray(np.vstack([Cm.T.real, -Cm.T.imag]))
+        # direct sums at full accuracy (rung 0), grouped by source range; with far="fmm"
+        # also the native-grid pairs the forward product subtracts from the FMM sum
+        self.direct = _group_ranges(*plan.dir_ranges[0], plan.N) if plan.n_src else None
+        self.fmm_sub = _group_ranges(*plan.fmm_sub, plan.N) if op.far == "fmm" else None
+        # on-the-fly expansion pairs, by source sphere
+        self.fly = [self._fly_group(ptr, idx, grid, projected) for ptr, idx, grid, projected in (
+            (plan.fly_ptr, plan.fly_idx, plan.near_grid, plan.near_proj is not None),
+            (plan.flyn_ptr, plan.flyn_idx, plan.grid, False)) if idx.size]
+        # stored blocks, by source sphere
+        if plan.n_block_pairs:
+            order = np.argsort(plan.block_src, kind="stable").astype(np.int64)
+            self.blk_order = order
+            self.blk_ptr = np.searchsorted(plan.block_src[order],
+                                           np.arange(op.M + 1)).astype(np.int64)
+
+    def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid, projected: bool) -> dict:
+        """Structures of one group of on-the-fly expansion pairs (target lists ``ptr``/``idx``)
+        evaluated on ``grid``: target points and pairs by source sphere."""
+        op = self.op
+        tgt_i = np.nonzero(np.diff(ptr))[0]
+        nodes = grid.nodes
+        lists: list[list[int]] = [[] for _ in range(op.M)]
+        for b, i in enumerate(tgt_i):
+            for j in idx[ptr[i]:ptr[i + 1]]:
+                lists[j].append(b)
+        src_ptr, blk = csr(lists)
+        pts = op.centers[tgt_i, None, :] + op.radii[tgt_i, None, None] * nodes[None]
+        return {"tgt": tgt_i, "size": grid.size, "ptr": src_ptr, "blk": blk,
+                "projected": projected,
+                "pts": np.ascontiguousarray(pts.reshape(-1, 3)),
+                "nrm": np.ascontiguousarray(np.tile(nodes, (tgt_i.size, 1)))}
+
+    def _expansion(self, Dbar: np.ndarray) -> np.ndarray:
+        """Transpose of :func:`sphere_vsh.expansion_coefficients`: complex adjoint
+        coefficients (M, 5, p+1, p+1) -> grid densities (M, 3N)."""
+        flat = Dbar.reshape(self.op.M, -1)
+        return dense_rows(np.hstack([flat.real, flat.imag]), self.coef)
+
+    def _near_on_the_fly(self, ob: np.ndarray) -> np.ndarray:
+        """Transpose of the on-the-fly expansion pairs of the forward product (projected
+        zone and node-sampled pairs beyond it) for adjoint tractions ``ob`` (M, 3N)."""
+        op = self.op
+        p = op.p
+        Dbar = np.zeros((op.M, 5, p + 1, p + 1), dtype=np.complex128)
+        for g in self.fly:
+            tb = dense_rows(ob[g["tgt"]], self.proj) if g["projected"] else ob[g["tgt"]]
+            traction_expansion_adjoint(g["pts"], g["nrm"], g["size"], g["ptr"], g["blk"],
+                                       op.centers, op.radii,
+                                       np.ascontiguousarray(tb.reshape(-1, 3)), p, Dbar)
+        return self._expansion(Dbar)
+
+    def _source_forces(self, f_bar: list[np.ndarray], s_bar: np.ndarray,
+                       coef_bar: np.ndarray) -> None:
+        """Transpose of the forward source forces: adds the adjoint point forces to the
+        densities ``s_bar`` (native levels) and to the VSH coefficients ``coef_bar``."""
+        plan = self.op.plan
+        for L, q in enumerate(plan.levels):
+            J = plan.lvl_spheres[L]
+            if J.size == 0:
+                continue
+            b0 = plan.lvl_base[L]
+            nq = sphere_grid(q).size
+            Fb = np.stack([f[b0:b0 + J.size * nq] for f in f_bar], axis=1).reshape(J.size, nq, 3)
+            Fb = (Fb * plan.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
+            if self.synth[L] is None:
+                s_bar[J] += Fb
+            else:
+                coef_bar[J] += dense_rows(Fb, self.synth[L])
+
+    def apply_bie(self, w: np.ndarray) -> np.ndarray:
+        """Transpose of the traction operator ``A_bie`` at full accuracy (rung 0).  With
+        ``far="fmm"`` the FMM sum is transposed by a stresslet FMM
+        (:func:`fmm_traction_adjoint`, same tolerance) and the native-grid pairs the forward
+        product removes are removed by transposed direct sums, so the adjoint matches the
+        forward to the FMM tolerance."""
+        op, plan = self.op, self.op.plan
+        M, N = op.M, plan.N
+        ob = np.ascontiguousarray(np.asarray(w, dtype=float).reshape(M, 3 * N))
+        out = dense_rows(ob, self.self_block)
+        if M > 1:
+            coef_bar = np.zeros((M, self.analysis.shape[0]))
+            if plan.fly_idx.size or plan.flyn_idx.size:
+                out += self._near_on_the_fly(ob)
+            if plan.n_src:
+                tb = ob.reshape(M * N, 3)
+                tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
+                f_bar = [np.zeros(plan.n_src) for _ in range(3)]
+                g = self.direct
+                if g["start"].size:
+                    fn = (direct_traction_adjoint if g["work"] > PARALLEL_WORK
+                          else direct_traction_adjoint_serial)
+                    fn(*self.tgt, *tbc, N, g["ptr"], g["tgt"], g["start"], g["stop"],
+                       *plan.src_xyz, *f_bar, False)
+                if op.far == "fmm":
+                    b0 = plan.lvl_base[plan.native]
+                    fb = fmm_traction_adjoint(op.tgt_pts, op.tgt_nrm, tb, op.quad_tol)
+                    sub = [np.zeros(plan.n_src) for _ in range(3)]
+                    g = self.fmm_sub
+                    direct_traction_adjoint_skip(*self.tgt, *tbc, N, g["ptr"], g["tgt"],
+                                                 g["start"], g["stop"], *plan.src_xyz, *sub,
+                                                 True)
+                    for k in range(3):
+                        f_bar[k][b0:b0 + M * N] += fb[:, k]
+                        f_bar[k] -= sub[k]
+                self._source_forces(f_bar, out, coef_bar)
+            if plan.n_block_pairs:
+                fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
+                      else apply_blocks_adjoint_serial)
+                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt, ob, coef_bar)
+            out += dense_rows(coef_bar, self.analysis)
+        return out.reshape(-1)
+
+    def precondition(self, z: np.ndarray) -> np.ndarray:
+        """Transpose of the one-body preconditioner ``P``."""
+        return dense_rows(z.reshape(self.op.M, -1), self.precond).reshape(-1)
+
+    def operator(self, v: np.ndarray) -> np.ndarray:
+        """``G' v = P' A_bie' v``, the transpose of the preconditioned GMRES operator."""
+        return self.precondition(self.apply_bie(v))
+
+    def velocities(self, u: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`bim.BimMobility.velocities`: rigid velocities (M, 6) ->
+        stacked densities.
+
+        The self read-off is a dense (6, 3N) matrix per sphere; the Faxen read-off of the
+        other spheres' expansions is transposed by a compiled kernel
+        (:func:`kernels_adjoint.center_readout_adjoint`), no per-pair matrices are stored."""
+        op = self.op
+        M, p = op.M, op.p
+        u = np.ascontiguousarray(np.asarray(u, dtype=float).reshape(M, 6))
+        us = np.empty((M, 6))
+        us[:, :3] = u[:, :3] * (op.radii / op.mu)[:, None]
+        us[:, 3:] = u[:, 3:] / op.mu
+        s = dense_rows(us, self.read)
+        if M > 1:
+            Dbar = np.zeros((M, 5, p + 1, p + 1), dtype=np.complex128)
+            center_readout_adjoint(op.centers, op.radii, u, p, op.mu, Dbar)
+            s += self._expansion(Dbar)
+        return s.reshape(-1)
+
+    def rhs(self, w: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`bim.BimMobility.rhs`: stacked densities -> (F, T) per sphere
+        (length 6M)."""
+        op = self.op
+        w = np.asarray(w, dtype=float).reshape(op.M, op.plan.N, 3)
+        a = op.radii[:, None]
+        out = np.empty((op.M, 6))
+        out[:, :3] = w.sum(axis=1) / (4 * np.pi * a ** 2)
+        out[:, 3:] = 3.0 * np.cross(op.plan.grid.nodes[None], w).sum(axis=1) / (8 * np.pi * a ** 3)
+        return out.reshape(-1)

@@ -1,0 +1,268 @@
+"""Pair set-up of the boundary-integral mobility: how each pair of spheres interacts.
+
+Built once per configuration by :class:`bim.BimMobility` and reused by every forward and
+transposed product: which ordered pairs are summed by direct quadrature on which source
+grid at each accuracy rung of relaxed GMRES, which get exact-expansion blocks (stored
+within a memory budget, closest first) and which are evaluated on the fly, and the
+source points of the direct sums.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels import traction_response
+from .sphere_vsh import (_expansion_factors, grid_levels, quadrature_radius, sampled_basis,
+                         sphere_grid)
+
+__all__ = ["PairPlan", "PROJECT_RHO", "RELAX_STEP", "csr"]
+
+PROJECT_RHO = 3.0
+"""Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
+with the projected near field, whatever the quadrature tolerance, so that the
+discretisation does not change with ``eps_gmres``; beyond, values at the nodes
+(quadrature, or expansions at tight tolerances).  Measured on a packed 27-sphere
+cluster (gaps >= 0.1a) at p = 6: zone radii 2, 3, 4, 6 give asymmetries 6.7e-4, 2.2e-4,
+1.9e-4, 1.9e-4."""
+
+RELAX_STEP = 10.0
+"""Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
+
+
+def csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+    """Compressed rows ``(ptr, idx)`` of a list of index lists."""
+    ptr = np.zeros(len(lists) + 1, dtype=np.int64)
+    ptr[1:] = np.cumsum([len(x) for x in lists])
+    idx = np.array([j for x in lists for j in x], dtype=np.int64)
+    return ptr, idx
+
+
+class PairPlan:
+    """How every ordered pair (i, j) of spheres is evaluated, by ``rho = (d_ij - a_i)/a_j``.
+
+    Direct quadrature on the coarsest source grid (:func:`sphere_vsh.grid_levels`)
+    accurate to the tolerance there (:func:`sphere_vsh.quadrature_radius`), once per rung
+    of the tolerance ladder, else exact expansions (dense blocks within
+    ``near_block_mb``, the rest on the fly).  Pairs in the zone ``rho < PROJECT_RHO``
+    are expansion pairs at any tolerance when ``near_proj`` is given.
+
+    Parameters
+    ----------
+    centers, radii : ndarray
+        Checked configuration, shapes (M, 3) and (M,).
+    p : int
+        Spherical-harmonic order.
+    quad_tol : float
+        Quadrature accuracy of the full-accuracy rung.
+    far : {"direct", "fmm"}
+        Far-field engine (the FMM works on the native grid and is not relaxed).
+    grid, near_grid : sphere_vsh grids
+        Native order-p grid and the finer grid of the projected near field.
+    near_proj : ndarray or None
+        Projection from the finer grid onto degree p (None: node sampling).
+    basis : sphere_vsh VSH basis of order p.
+    near_block_mb : float
+        Memory budget of the stored blocks.
+    all_expansion : bool
+        Put every pair in the expansion group (for testing).
+
+    Attributes
+    ----------
+    tolerance_ladder : tuple of float
+        Quadrature accuracies of the rungs (first = ``quad_tol``).
+    level_radii : dict
+        Source-grid order -> scaled distance beyond which it is accurate to ``quad_tol``.
+    pairs_per_level : dict
+        Source-grid order -> ordered pairs summed directly on it at full accuracy.
+    n_far_pairs, n_near_pairs, n_block_pairs : int
+        Pairs by direct quadrature (not blocked), by expansions, with a stored block.
+    blocks, block_tgt, block_src, block_ptr : ndarray
+        Stored blocks (traction on sphere i per VSH coefficient of sphere j), sorted by
+        target sphere.
+    fly_ptr, fly_idx, flyn_ptr, flyn_idx : ndarray
+        On-the-fly expansion pairs per target sphere: projected zone, and node-sampled.
+    levels, native, lvl_spheres, lvl_base, n_src, src_xyz, src_scale, synth :
+        Source grids, the spheres on each, their point offsets, points and weights, and
+        the synthesis matrices of the upsampled levels.
+    dir_ranges : list
+        Per rung: ``(ptr, start, stop)`` source ranges summed by each target sphere.
+    fmm_sub : tuple
+        With ``far="fmm"``: the native-grid ranges removed from the FMM sum.
+    """
+
+    def __init__(self, centers: np.ndarray, radii: np.ndarray, p: int, quad_tol: float,
+                 far: str, grid, near_grid, near_proj: np.ndarray | None, basis,
+                 near_block_mb: float, all_expansion: bool = False) -> None:
+        self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], p
+        self.quad_tol, self.far = quad_tol, far
+        self.grid, self.near_grid, self.near_proj = grid, near_grid, near_proj
+        self.N = grid.size
+        self.basis = basis
+        self.near_block_mb = float(near_block_mb)
+        self._classify(all_expansion)
+
+    def _classify(self, all_expansion: bool) -> None:
+        """Pair classes, tolerance ladder, blocks and source points (see the class)."""
+        M, p = self.M, self.p
+        c, r = self.centers, self.radii
+        levels = grid_levels(p)
+        # accuracy ladder for relaxed (inexact) GMRES: quad_tol * RELAX_STEP^k <= 1e-4
+        tols = [self.quad_tol]
+        if self.far == "direct":
+            while tols[-1] * RELAX_STEP <= 1e-4 * (1 + 1e-9) and len(tols) < 12:
+                tols.append(tols[-1] * RELAX_STEP)
+        self.tolerance_ladder = tuple(tols)
+        rho = np.full((M, M), np.inf)
+        if M > 1:
+            d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
+            rho = (d - r[:, None]) / r[None, :]
+            np.fill_diagonal(rho, np.inf)
+
+        def classify(tol: float) -> tuple[np.ndarray, np.ndarray]:
+            if M == 1:                                     # no pairs: nothing to measure
+                radius = np.full(len(levels), np.inf)
+            else:
+                radius = np.minimum.accumulate([quadrature_radius(p, q, tol) for q in levels])
+            lv = np.full((M, M), -2, dtype=np.int64)       # -1: self, -2: expansion
+            for L in range(len(levels) - 1, -1, -1):
+                lv[rho >= radius[L]] = L
+            np.fill_diagonal(lv, -1)
+            return lv, radius
+
+        level_of, radius = classify(self.quad_tol)
+        native = levels.index(p)
+        self.native = native
+        if self.far == "fmm":       # the FMM works on the native grid: no coarser levels
+            level_of[(level_of >= 0) & (level_of < native)] = native
+        if self.near_proj is not None:     # the projected zone: expansions at any tolerance
+            level_of[(rho < PROJECT_RHO) & (level_of >= 0)] = -2
+        if all_expansion:
+            level_of[:] = -2
+            np.fill_diagonal(level_of, -1)
+        self.level_radii = dict(zip(levels, radius.tolist()))
+        ladder_levels = [level_of]
+        for tol in tols[1:]:
+            lv, _ = classify(tol)
+            ladder_levels.append(np.where(level_of == -2, -2, lv))   # expansion pairs stay
+        self.levels = levels
+        self.level_of = level_of
+        self._build_blocks()
+        level_of = np.where(self.blocked, -2, level_of)
+        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
+        # sources per level: the spheres any rung of the ladder uses at that level
+        self.lvl_spheres, self.lvl_base = [], []
+        base = 0
+        for L, q in enumerate(levels):
+            used = np.nonzero(np.any([(lv == L).any(axis=0) for lv in ladder_levels], axis=0))[0]
+            if L == native and self.far == "fmm":
+                used = np.arange(M)
+            self.lvl_spheres.append(used)
+            self.lvl_base.append(base)
+            base += used.size * sphere_grid(q).size
+        self.n_src = base
+        xyz = np.empty((3, base))
+        self.src_scale = []
+        slot = np.full((len(levels), M), -1, dtype=np.int64)
+        for L, q in enumerate(levels):
+            g = sphere_grid(q)
+            J = self.lvl_spheres[L]
+            b0 = self.lvl_base[L]
+            pts = c[J, None, :] + r[J, None, None] * g.nodes[None]
+            xyz[:, b0:b0 + J.size * g.size] = pts.reshape(-1, 3).T
+            self.src_scale.append(np.ascontiguousarray((r[J] ** 2)[:, None] * g.weights[None, :]))
+            slot[L, J] = b0 + np.arange(J.size) * g.size
+        self.src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
+        self.synth = [None if q == p or self.lvl_spheres[L].size == 0
+                       else np.ascontiguousarray(sampled_basis(p, q).T)
+                       for L, q in enumerate(levels)]
+        nq = np.array([sphere_grid(q).size for q in levels], dtype=np.int64)
+
+        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
+            ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
+            L = lv[ii, jj]
+            start = slot[L, jj]
+            ptr = np.searchsorted(ii, np.arange(M + 1)).astype(np.int64)
+            return ptr, start.astype(np.int64), (start + nq[L]).astype(np.int64)
+
+        if self.far == "fmm":
+            # FMM sums all native points; remove its native self and non-native pairs
+            self.dir_ranges = [ranges(level_of, lambda lv: lv > native)]
+            self.fmm_sub = ranges(np.where(level_of == native, -2, native),
+                                   lambda lv: lv == native)
+        else:
+            self.dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
+        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(levels)}
+        self.n_far_pairs = int((level_of >= 0).sum())
+        self.n_near_pairs = int((self.level_of == -2).sum())
+
+    def _build_blocks(self) -> None:
+        """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
+        closest pairs first, within the memory budget; the other expansion pairs
+        are kept for on-the-fly evaluation."""
+        M, N, p = self.M, self.N, self.p
+        b = self.basis
+        nv = b.B.shape[1]
+        flat = np.argmax(np.abs(b.to_complex), axis=0)
+        cfac = b.to_complex[flat, np.arange(nv)]
+        # candidates: expansion pairs, then pairs whose quadrature needs a source grid of
+        # order >= 1.5 p (a stored block is then cheaper per product than the sum)
+        lv = self.level_of
+        fine = [L for L, q in enumerate(self.levels) if 2 * q >= 3 * p]
+        ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
+        pairs = list(zip(ii.tolist(), jj.tolist()))
+        if pairs:
+            d = np.array([np.linalg.norm(self.centers[i] - self.centers[j]) - self.radii[i]
+                          for i, j in pairs]) / np.array([self.radii[j] for _, j in pairs])
+            pairs = [pairs[k] for k in np.argsort(d, kind="stable")]
+        per_block = 3 * N * nv * 8 / 2 ** 20
+        nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
+        blocked, rest = pairs[:nb], pairs[nb:]
+        blocked.sort()                                     # grouped by target sphere
+        fac = np.ascontiguousarray(_expansion_factors(p))
+        E = np.empty((len(blocked), 3 * N, nv))
+        # expansion pairs: responses on the finer grid, projected onto degree p;
+        # quadrature pairs (smooth traction) and node sampling: at the native nodes
+        projected = np.array([self._projected(i, j) for i, j in blocked], dtype=bool)
+        for proj in (True, False):
+            idx = np.nonzero(projected == proj)[0]
+            nodes = self.near_grid.nodes if proj else self.grid.nodes
+            Nq = nodes.shape[0]
+            chunk = max(1, int(64e6 // (Nq * 9 * (p + 1) ** 2 * 16)))     # ~64 MB of responses
+            for k0 in range(0, idx.size, chunk):
+                part = idx[k0:k0 + chunk]
+                ii = np.array([blocked[k][0] for k in part])
+                jj = np.array([blocked[k][1] for k in part])
+                tgt = (self.centers[ii, None, :]
+                       + self.radii[ii, None, None] * nodes[None]).reshape(-1, 3)
+                resp = np.empty((tgt.shape[0], 3, p + 1, p + 1, 3), dtype=np.complex128)
+                traction_response(np.ascontiguousarray(tgt),
+                                  np.ascontiguousarray(np.tile(nodes, (len(part), 1))),
+                                  np.ascontiguousarray(np.repeat(self.centers[jj], Nq, axis=0)),
+                                  np.repeat(self.radii[jj], Nq), p, fac, resp)
+                R = (resp.reshape(len(part), Nq, -1, 3).transpose(0, 1, 3, 2)
+                     .reshape(len(part), 3 * Nq, -1))
+                Ep = (R[:, :, flat] * cfac[None, None, :]).real
+                E[part] = np.matmul(self.near_proj, Ep) if proj else Ep
+        self.blocks = E
+        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
+        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
+        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
+        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
+        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
+        for i, j in rest:
+            if self.level_of[i, j] == -2:
+                zone = self.near_proj is None or self._projected(i, j)
+                (lists if zone else node_lists)[i].append(j)
+        self.blocked = np.zeros((M, M), dtype=bool)
+        for i, j in blocked:
+            self.blocked[i, j] = True
+        self.fly_ptr, self.fly_idx = csr(lists)
+        self.flyn_ptr, self.flyn_idx = csr(node_lists)
+        self.n_block_pairs = len(blocked)
+
+    def _projected(self, i: int, j: int) -> bool:
+        """Whether pair (i, j) gets the projected near field (the zone ``rho < 2``)."""
+        if self.near_proj is None or self.level_of[i, j] != -2:
+            return False
+        d = float(np.linalg.norm(self.centers[i] - self.centers[j]))
+        return (d - self.radii[i]) / self.radii[j] < PROJECT_RHO
