@@ -51,7 +51,7 @@ def _symmetric(A, what: str, symmetrize_rtol: float):
 
 
 def symmetric_lcp(A, b, path: Path, what: str, symmetrize_rtol: float, **kw) -> LCP:
-    """The LCP ``(A, b)`` read from ``path``, with ``A`` checked or symmetrised by the policy above.
+    """The LCP ``(A, b)`` read from ``path``, ``A`` checked or symmetrised by the policy above.
 
     Parameters
     ----------

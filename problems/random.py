@@ -1,9 +1,10 @@
-"""Random SPD problem families: a synthetic stand-in for the suspension LCPs, and bi-fidelity pairs.
+"""Random SPD problem families: a stand-in for the suspension LCPs, and bi-fidelity pairs.
 
 ``random-spd`` was the default set of ``lcpbench run`` until the stored sets of
-suspension LCPs landed (now ``set-lattice-bim-m3``): SPD matrices with condition numbers 10..100 and n = 150..300, the sizes
-and the benign conditioning of the collision LCPs of the method paper (section
-"Numerical Results": kappa = O(10), N_c of the order of the particle count).
+suspension LCPs landed (now ``set-lattice-bim-m3``): SPD matrices with condition numbers
+10..100 and n = 150..300, the sizes and the benign conditioning of the collision LCPs of
+the method paper (section "Numerical Results": kappa = O(10), N_c of the order of the
+particle count).
 ``bifidelity`` pairs a high-fidelity matrix with a perturbed low-fidelity one,
 the setting of the paper's Bi-PQN (section "Multifidelity" -> "A Bifidelity
 Proximal Quasi-Newton Method").

@@ -16,8 +16,8 @@ import numpy as np
 from lcpbench import LCP
 from lcpbench.core.registry import Bounds
 
-__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "seeded", "random_spd_matrix", "planted_b",
-           "planted_pair", "reference", "meta"]
+__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "seeded", "random_spd_matrix",
+           "planted_b", "planted_pair", "reference", "meta"]
 
 #: Number of instances of a family.
 Count = Annotated[int, Bounds(ge=1)]
