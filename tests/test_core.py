@@ -124,12 +124,13 @@ def _liar(ctx, p):
 
 
 @pytest.mark.parametrize("lie", ["w", "x"])
-def test_a_lying_solver_is_caught_by_verification(lie):
+def test_a_lying_solver_is_caught_by_verification(lie, true_residual):
     lcp = LCP(*planted(20, 20, seed=1))
     res = lcpbench.solve(lcp, solver=f"test-liar:lie={lie}")
     assert res.status == Status.converged           # the claim is kept as the claim ...
     assert not res.solved                           # ... but the verified residual refutes it
     assert res.false_convergence
+    assert res.verified_kkt_abs == pytest.approx(true_residual(lcp, res.x), rel=1e-12)
     assert res.verified_kkt_abs > 1e-3
 
 
