@@ -6,7 +6,8 @@ spectralStepSize) has no convergence guarantee with bound constraints; Dai &
 Fletcher (Numer. Math. 100, 2005) constructed box-constrained quadratics on
 which it cycles. This script finds such instances by a seeded random search
 over small (n = 3..8), ill-conditioned SPD matrices, and prints the ones it
-finds as Python literals for ``problems/hard.py`` (family ``bb-cycle``).
+finds as JSON lines for the ``instances`` list of ``problems/data/bb_cycle.json``
+(family ``bb-cycle``; floats in round-trip precision).
 
 The iteration, implemented here independently of ``solvers/pgd.py``::
 
@@ -33,6 +34,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 
@@ -122,13 +124,6 @@ def classify(A: np.ndarray, b: np.ndarray, maxit: int) -> str:
     return "cycle"
 
 
-def literal(a: np.ndarray) -> str:
-    """``a`` as a Python literal with round-trip (repr) precision."""
-    if a.ndim == 1:
-        return "[" + ", ".join(repr(float(v)) for v in a) + "]"
-    return "[\n" + "".join("        " + literal(r) + ",\n" for r in a) + "    ]"
-
-
 def confirm(A: np.ndarray, b: np.ndarray, maxit: int) -> str:
     """Run the registered bb-pgd and the consensus reference on the instance."""
     import lcpbench
@@ -181,8 +176,8 @@ def main(argv=None) -> int:
               f"({time.time() - t0:.0f} s)")
         if args.confirm:
             print("# " + confirm(A, b, min(args.maxit, 2000)))
-        print(f"dict(seed={args.seed}, trial={trial}, cond={cond!r}, kind={kind!r},\n"
-              f"    A={literal(A)},\n    b={literal(b)}),")
+        print(json.dumps({"trial": trial, "cond": float(cond), "kind": kind,
+                          "A": A.tolist(), "b": b.tolist()}) + ",")
         sys.stdout.flush()
         if found >= args.keep:
             break

@@ -1,5 +1,8 @@
 """Built-in problem plugins (installed as ``lcpbench.problems``).
 
-Each module registers problem families with :func:`lcpbench.register_problem`
-and is listed under the ``lcpbench.problems`` entry-point group.
+The modules listed under the ``lcpbench.problems`` entry-point group register
+problem families with :func:`lcpbench.register_problem`. The others hold what
+those share: the building blocks of the synthetic families (``synthetic``) and
+the file formats that ``external`` reads (``siconos``, ``fclib``, and their
+common rules in ``formats``).
 """

@@ -1,9 +1,10 @@
-"""Random SPD problem families: a synthetic stand-in for the suspension LCPs, and bi-fidelity pairs.
+"""Random SPD problem families: a stand-in for the suspension LCPs, and bi-fidelity pairs.
 
 ``random-spd`` was the default set of ``lcpbench run`` until the stored sets of
-suspension LCPs landed (now ``set-lattice-bim-m3``): SPD matrices with condition numbers 10..100 and n = 150..300, the sizes
-and the benign conditioning of the collision LCPs of the method paper (section
-"Numerical Results": kappa = O(10), N_c of the order of the particle count).
+suspension LCPs landed (now ``set-lattice-bim-m3``): SPD matrices with condition numbers
+10..100 and n = 150..300, the sizes and the benign conditioning of the collision LCPs of
+the method paper (section "Numerical Results": kappa = O(10), N_c of the order of the
+particle count).
 ``bifidelity`` pairs a high-fidelity matrix with a perturbed low-fidelity one,
 the setting of the paper's Bi-PQN (section "Multifidelity" -> "A Bifidelity
 Proximal Quasi-Newton Method").
@@ -12,23 +13,21 @@ Proximal Quasi-Newton Method").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from lcpbench import LCP, Operator, register_problem
+from lcpbench.core.specs import Bounds, CheckedParams
 
-from .hard import random_spd_matrix
+from .synthetic import Cond, Count, Seed, Size, meta, random_spd_matrix, seeded
 
 __all__ = ["random_spd", "bifidelity", "symmetric_perturbation", "with_perturbed_lows",
            "PERTURBED_LOWS"]
 
 
-def _sizes(rng: np.random.Generator, count: int, lo: int, hi: int) -> np.ndarray:
-    return rng.integers(lo, hi + 1, count)
-
-
 @dataclass(frozen=True)
-class RandomSpdParams:
+class RandomSpdParams(CheckedParams):
     """Parameters of random-spd.
 
     Parameters
@@ -44,20 +43,21 @@ class RandomSpdParams:
         (defaults 10 and 100).
     """
 
-    count: int = 5
-    seed: int = 0
-    n_min: int = 150
-    n_max: int = 300
-    cond_min: float = 10.0
-    cond_max: float = 100.0
+    count: Count = 5
+    seed: Seed = 0
+    n_min: Size = 150
+    n_max: Size = 300
+    cond_min: Cond = 10.0
+    cond_max: Cond = 100.0
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.count, int) and self.count >= 1):
-            raise ValueError(f"count must be an integer >= 1, got {self.count!r}")
-        if not 1 <= self.n_min <= self.n_max:
-            raise ValueError(f"need 1 <= n_min <= n_max, got {self.n_min}, {self.n_max}")
-        if not 1 <= self.cond_min <= self.cond_max or not np.isfinite(self.cond_max):
-            raise ValueError("need 1 <= cond_min <= cond_max < inf")
+        super().__post_init__()
+        if self.n_max < self.n_min:
+            raise ValueError(f"need n_min <= n_max, got n_min = {self.n_min}, "
+                             f"n_max = {self.n_max}")
+        if self.cond_max < self.cond_min:
+            raise ValueError(f"need cond_min <= cond_max, got cond_min = {self.cond_min:g}, "
+                             f"cond_max = {self.cond_max:g}")
 
 
 @register_problem("random-spd", RandomSpdParams)
@@ -65,26 +65,24 @@ def random_spd(p: RandomSpdParams) -> list[LCP]:
     """Random SPD LCPs, n 150..300 and condition number 10..100 (synthetic stand-in).
 
     ``A = Q diag(lam) Q'`` with Haar-random ``Q`` and eigenvalues from 1 to
-    ``cond`` (:func:`lcpbench.problems.hard.random_spd_matrix`), scaled so that
+    ``cond`` (:func:`lcpbench.problems.synthetic.random_spd_matrix`), scaled so that
     ``||A||_2 = 1``; ``b ~ N(0, 1)``. With mixed signs in b the unconstrained
     minimiser ``-A^{-1} b`` has entries of both signs, so the solution has a
     mix of active (x_i > 0) and inactive (x_i = 0) indices: about half each.
     """
-    out = []
-    for i in range(p.count):
-        rng = np.random.default_rng([p.seed, i])
+    def one(i: int, rng: np.random.Generator) -> LCP:
         n = int(rng.integers(p.n_min, p.n_max + 1))
         cond = float(10.0 ** rng.uniform(np.log10(p.cond_min), np.log10(p.cond_max)))
         A = random_spd_matrix(rng, n, cond) / cond
         b = rng.standard_normal(n)
-        out.append(LCP(A, b, name=f"random-spd-{i}",
-                       meta={"family": "random-spd", "seed": p.seed, "n": n,
-                             "instance": i, "cond": cond}))
-    return out
+        return LCP(A, b, name=f"random-spd-{i}",
+                   meta=meta("random-spd", p.seed, n, instance=i, cond=cond))
+
+    return seeded(p.count, p.seed, one)
 
 
 @dataclass(frozen=True)
-class BifidelityParams:
+class BifidelityParams(CheckedParams):
     """Parameters of bifidelity.
 
     Parameters
@@ -111,25 +109,13 @@ class BifidelityParams:
         1.0; default 0.1), used for E-MVPs.
     """
 
-    count: int = 3
-    seed: int = 0
-    n: int = 150
-    cond: float = 50.0
-    rel_error: float = 1e-3
+    count: Count = 3
+    seed: Seed = 0
+    n: Size = 150
+    cond: Cond = 50.0
+    rel_error: Annotated[float, Bounds(ge=0)] = 1e-3
     indefinite: bool = False
-    cost_ratio: float = 0.1
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.count, int) and self.count >= 1):
-            raise ValueError(f"count must be an integer >= 1, got {self.count!r}")
-        if self.n < 1:
-            raise ValueError(f"n must be >= 1, got {self.n}")
-        if not (np.isfinite(self.cond) and self.cond >= 1):
-            raise ValueError(f"cond must be a finite number >= 1, got {self.cond}")
-        if not (np.isfinite(self.rel_error) and self.rel_error >= 0):
-            raise ValueError(f"rel_error must be >= 0, got {self.rel_error}")
-        if not (np.isfinite(self.cost_ratio) and self.cost_ratio > 0):
-            raise ValueError(f"cost_ratio must be > 0, got {self.cost_ratio}")
+    cost_ratio: Annotated[float, Bounds(gt=0)] = 0.1
 
 
 def symmetric_perturbation(rng: np.random.Generator, A: np.ndarray, rel: float) -> np.ndarray:
@@ -179,9 +165,7 @@ def bifidelity(p: BifidelityParams) -> list[LCP]:
     smallest eigenvalue of ``A_low`` below zero). Operators carry declared
     costs: ``A`` 1.0, ``A_low`` ``cost_ratio``; ``b ~ N(0, 1)``.
     """
-    out = []
-    for i in range(p.count):
-        rng = np.random.default_rng([p.seed, i])
+    def one(i: int, rng: np.random.Generator) -> LCP:
         A = random_spd_matrix(rng, p.n, p.cond) / p.cond
         b = rng.standard_normal(p.n)
         E = symmetric_perturbation(rng, A, p.rel_error)
@@ -192,11 +176,12 @@ def bifidelity(p: BifidelityParams) -> list[LCP]:
         A_low = A + E
         A_low = (A_low + A_low.T) / 2
         lam_low = float(np.linalg.eigvalsh(A_low)[0])
-        out.append(LCP(Operator(A, cost=1.0), b, name=f"bifidelity-{i}",
-                       low={"low": Operator(A_low, cost=p.cost_ratio, name="low")},
-                       meta={"family": "bifidelity", "seed": p.seed, "n": p.n, "instance": i,
-                             "cond": p.cond, "rel_error": p.rel_error,
-                             "rel_error_actual": float(np.linalg.norm(A_low - A, 2)),
-                             "indefinite": p.indefinite, "lam_min_low": lam_low,
-                             "cost_ratio": p.cost_ratio}))
-    return out
+        return LCP(Operator(A, cost=1.0), b, name=f"bifidelity-{i}",
+                   low={"low": Operator(A_low, cost=p.cost_ratio, name="low")},
+                   meta=meta("bifidelity", p.seed, p.n, instance=i, cond=p.cond,
+                             rel_error=p.rel_error,
+                             rel_error_actual=float(np.linalg.norm(A_low - A, 2)),
+                             indefinite=p.indefinite, lam_min_low=lam_low,
+                             cost_ratio=p.cost_ratio))
+
+    return seeded(p.count, p.seed, one)

@@ -12,6 +12,7 @@ import scipy.sparse as sp
 
 import lcpbench
 import lcpbench.problems.external as ex
+import lcpbench.problems.siconos as siconos_format
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params
 
@@ -54,8 +55,8 @@ def test_siconos_dense_layout_matches_numerics(tmp_path):
 
 
 def test_siconos_dense_is_column_major():
-    c = ex._Cursor("2\t2\n1 3\n2 4\n", Path("mem.dat"))
-    np.testing.assert_array_equal(ex._read_dense(c, 2, 2), [[1.0, 2.0], [3.0, 4.0]])
+    c = siconos_format._Cursor("2\t2\n1 3\n2 4\n", Path("mem.dat"))
+    np.testing.assert_array_equal(siconos_format._read_dense(c, 2, 2), [[1.0, 2.0], [3.0, 4.0]])
 
 
 def test_siconos_handwritten_dense_with_trailing_remarks(tmp_path):

@@ -221,9 +221,9 @@ def test_report_of_a_stored_set_run_has_the_fidelity_section(stored_set, tmp_pat
     from lcpbench.cli import main
 
     out = tmp_path / "run"
-    main(["run", "--problem", f"stored:path={stored_set},instances=0-1", "--solver", "bb-pgd",
-          "--out", str(out)])
-    main(["report", str(out)])
+    assert main(["run", "--problem", f"stored:path={stored_set},instances=0-1",
+                 "--solver", "bb-pgd", "--out", str(out)]) == 0
+    assert main(["report", str(out)]) == 0
     page = (out / "report.html").read_text()
     assert "Fidelity study of the stored sets" in page
     assert "fid.h5 (2 selected instance(s))" in page

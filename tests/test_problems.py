@@ -70,7 +70,9 @@ def test_planted_reference_solves_the_lcp(lcp):
     w_true = lcp.dense() @ x + lcp.b
     assert np.linalg.norm(w_true - w) <= 1e-12 * scale
     assert kkt_abs(x, w_true) <= 1e-12 * scale
-    assert ref["objective"] == pytest.approx(0.5 * x @ (w + lcp.b), rel=1e-12, abs=1e-12)
+    # the QP objective from the matrix itself, not from the planted w
+    A = lcp.dense()
+    assert ref["objective"] == pytest.approx(0.5 * x @ A @ x + lcp.b @ x, rel=1e-10, abs=1e-12)
 
 
 @pytest.mark.parametrize("lcp", [lcp for lcp in planted_lcps() if lcp.n],
@@ -194,11 +196,31 @@ def test_bifidelity_low_operator(indefinite):
             assert rel == pytest.approx(1e-3, rel=1e-6)
 
 
-def test_bad_params_rejected():
-    with pytest.raises((ValueError, TypeError)):
-        make_params("planted", get_problem("planted").params, {"count": 0})
-    with pytest.raises((ValueError, TypeError)):
-        make_params("singular-psd", get_problem("singular-psd").params,
-                    {"n_independent": 10, "dof": 5})
-    with pytest.raises((ValueError, TypeError)):
-        make_params("bifidelity", get_problem("bifidelity").params, {"cost_ratio": 0})
+@pytest.mark.parametrize("family, values, message", [
+    ("planted", {"count": 0}, "planted: count must be an integer >= 1, got 0"),
+    ("planted", {"seed": -1}, "seed must be an integer >= 0, got -1"),
+    ("planted", {"cond": "inf"}, "cond must be a finite number >= 1, got inf"),
+    ("spd-cond", {"cond_min": 1e3, "cond_max": 10},
+     r"cond_max \(10\) must be >= cond_min \(1000\)"),
+    ("singular-psd", {"n_independent": 10, "dof": 5}, r"dof \(5\) must be >= n_independent"),
+    ("fathi", {"sizes": "[4,41]"}, "each of sizes must be an integer in 1..40, got 41"),
+    ("all-inactive", {"zero_fraction": 1.5}, "zero_fraction must be a finite number in 0..1"),
+    ("bad-scale", {"n": 1}, "n must be an integer >= 2, got 1"),
+    ("bifidelity", {"cost_ratio": 0}, "cost_ratio must be a finite number > 0, got 0.0"),
+    ("random-spd", {"n_min": 40, "n_max": 30}, "need n_min <= n_max"),
+    ("siconos", {"path": "x.dat", "symmetrize_rtol": -1}, "symmetrize_rtol must be a number >= 0"),
+])
+def test_bad_params_rejected(family, values, message):
+    with pytest.raises(ValueError, match=message):
+        make_params(family, get_problem(family).params, values)
+
+
+def test_declared_bounds_hold_for_direct_construction():
+    params = get_problem("planted").params
+    with pytest.raises(ValueError, match="count must be an integer >= 1, got 2.5"):
+        params(count=2.5)
+    with pytest.raises(ValueError, match="n_active must be an integer >= 0, got True"):
+        params(n_active=True)
+    assert params(count=np.int64(2), cond=1).count == 2
+    assert get_problem("siconos").params(path="x", symmetrize_rtol=np.inf).symmetrize_rtol \
+        == np.inf

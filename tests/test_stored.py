@@ -108,7 +108,13 @@ def test_emvps_use_the_stored_cost_ratio(tmp_path):
     assert res.verified["kkt_abs"] <= 1e-6
     assert res.lofi_mvps["p4"] > 0
     assert res.emvps == pytest.approx(res.mvps + 0.1 * res.lofi_mvps["p4"], rel=1e-12)
-    assert lcp.emvps() == pytest.approx(lcp.A.count + 0.1 * lcp.low["p4"].count)
+    # the solve ran on copies: the instance's own counters start at zero, and products on
+    # them are priced at the stored ratios (p4 0.1, p2 0.02 of a high-fidelity MVP)
+    assert lcp.A.count == 0 and lcp.low["p4"].count == 0
+    lcp.A @ np.ones(lcp.n)
+    lcp.low["p4"] @ np.ones((lcp.n, 10))
+    lcp.low["p2"] @ np.ones((lcp.n, 5))
+    assert lcp.emvps() == pytest.approx(1 + 10 * 0.1 + 5 * 0.02, rel=1e-12)
 
 
 def test_resume_keeps_instances_and_appends(tmp_path):

@@ -11,10 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
+import numbers
 import typing
+from dataclasses import dataclass
 from typing import Any, Optional
 
-__all__ = ["split_top_level", "parse_spec", "make_params", "describe_params"]
+__all__ = ["split_top_level", "parse_spec", "make_params", "describe_params", "Bounds",
+           "CheckedParams", "check_bounds"]
 
 
 def split_top_level(text: str, sep: str = ",") -> list[str]:
@@ -141,12 +145,103 @@ def _convert(owner: str, key: str, tp: Any, value: Any) -> Any:
     raise TypeError(f"{what}: cannot convert {value!r} to {tp}")
 
 
+# ---------------------------------------------------------------------- declared bounds
+@dataclass(frozen=True)
+class Bounds:
+    """Allowed values of a numeric parameter, declared in its type hint.
+
+    ``count: Annotated[int, Bounds(ge=1)] = 5`` declares an integer >= 1. A
+    parameter dataclass that derives from :class:`CheckedParams` checks every
+    declared bound when it is built (from the CLI, a sweep or Python), and the
+    error names the parameter, what it accepts and the value given. In
+    ``tuple[Annotated[int, Bounds(...)], ...]`` the bound applies to every item;
+    ``Literal`` fields are held to their choices the same way. String conversion
+    ignores the annotation: it sees the plain type.
+
+    Attributes
+    ----------
+    ge, gt, le, lt : float, optional
+        Inclusive (``ge``, ``le``) and strict (``gt``, ``lt``) limits.
+    finite : bool
+        Refuse inf (nan is always refused; default True).
+    """
+
+    ge: Optional[float] = None
+    gt: Optional[float] = None
+    le: Optional[float] = None
+    lt: Optional[float] = None
+    finite: bool = True
+
+    def admits(self, value: float) -> bool:
+        """True when ``value`` lies within the bounds."""
+        v = float(value)
+        if math.isnan(v) or (self.finite and math.isinf(v)):
+            return False
+        return ((self.ge is None or v >= self.ge) and (self.gt is None or v > self.gt)
+                and (self.le is None or v <= self.le) and (self.lt is None or v < self.lt))
+
+    def describe(self, integer: bool) -> str:
+        """``"an integer in 1..40"``, ``"a finite number >= 0"``: what the bounds accept."""
+        kind = "an integer" if integer else ("a finite number" if self.finite else "a number")
+        if self.ge is not None and self.le is not None:
+            return f"{kind} in {self.ge:g}..{self.le:g}"
+        limits = [f"{op} {lim:g}" for op, lim in ((">=", self.ge), (">", self.gt),
+                                                  ("<=", self.le), ("<", self.lt))
+                  if lim is not None]
+        return " ".join([kind, " and ".join(limits)]).strip()
+
+
+def _check_value(label: str, tp: Any, value: Any) -> None:
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        base, *extras = typing.get_args(tp)
+        for bound in (e for e in extras if isinstance(e, Bounds)):
+            integer = base is int
+            number = isinstance(value, numbers.Integral if integer else numbers.Real)
+            if isinstance(value, bool) or not number or not bound.admits(value):
+                raise ValueError(f"{label} must be {bound.describe(integer)}, got {value!r}")
+        _check_value(label, base, value)
+    elif origin is typing.Literal and value not in typing.get_args(tp):
+        raise ValueError(f"{label} must be one of "
+                         f"{', '.join(map(repr, typing.get_args(tp)))}, got {value!r}")
+    elif origin in (tuple, list) and isinstance(value, (tuple, list)):
+        item_t = typing.get_args(tp)[0] if typing.get_args(tp) else Any
+        for item in value:
+            _check_value(f"each of {label}", item_t, item)
+
+
+def check_bounds(params: Any) -> None:
+    """Check the fields of parameter dataclass ``params``: :class:`Bounds`, ``Literal`` choices.
+
+    Raises
+    ------
+    ValueError
+        Naming the first field outside its bounds, what it accepts and its value.
+    """
+    hints = typing.get_type_hints(type(params), include_extras=True)
+    for f in dataclasses.fields(params):
+        _check_value(f.name, hints[f.name], getattr(params, f.name))
+
+
+class CheckedParams:
+    """Base of parameter dataclasses that declare :class:`Bounds` in their type hints.
+
+    Its ``__post_init__`` runs :func:`check_bounds`; a subclass with checks that
+    relate several fields defines its own ``__post_init__`` and calls
+    ``super().__post_init__()`` first.
+    """
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
+
 def make_params(owner: str, cls: type, values: Optional[dict] = None):
     """Build the frozen parameter dataclass ``cls`` from ``values``.
 
     Strings are converted by the field's type hint; unknown keys and values of
     the wrong type raise errors naming the parameter and the accepted values.
-    Fields may validate themselves further in ``__post_init__``.
+    Fields may declare :class:`Bounds` (checked by :class:`CheckedParams`) and validate
+    themselves further in ``__post_init__``.
     """
     values = dict(values or {})
     hints = typing.get_type_hints(cls)

@@ -1,0 +1,33 @@
+"""Fixtures shared by several test files."""
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_limits
+
+
+# ---------------------------------------------------------------------- shared helpers
+@pytest.fixture
+def one_blas_thread():
+    """Run the test with one BLAS thread.
+
+    The LCPs of the solver tests are small (n <= 300): a threaded BLAS gains nothing on
+    them, and on a machine whose cores are busy its spinning threads make each product
+    5-20 times slower (the hard-case test took minutes instead of seconds). One thread
+    also makes the rounding of every product independent of the machine's core count.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+@pytest.fixture
+def true_residual():
+    """``residual(lcp, x) = ||min(x, A x + b)||`` from the explicit matrix, outside the framework.
+
+    Tests compare the framework's verified residual and statuses with this plain numpy
+    value, so a verification that used the solver's own ``w`` (or a stale product) fails.
+    """
+    def residual(lcp, x) -> float:
+        x = np.asarray(x, dtype=float)
+        return float(np.linalg.norm(np.minimum(x, lcp.dense() @ x + lcp.b)))
+
+    return residual
