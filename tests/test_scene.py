@@ -312,9 +312,9 @@ def test_scene_warm_start_carries_forces_by_pair_identity():
 
 
 def test_bad_scene_parameters():
-    with pytest.raises(ValueError, match="m = 0 must be an integer >= 1"):
+    with pytest.raises(ValueError, match="m must be an integer >= 1, got 0"):
         make_scene("lattice:m=0")
-    with pytest.raises(ValueError, match="dt = -0.1 must be a finite positive"):
+    with pytest.raises(ValueError, match="dt must be a finite number > 0, got -0.1"):
         make_scene("lattice:m=2,dt=-0.1")
     with pytest.raises(ValueError, match="unknown fidelity"):
         LatticeParams(m=2, low=("x9",))
@@ -395,8 +395,8 @@ def test_cli_simulate(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, msg", [
-    (["--scene", "lattice:m=0"], "m = 0"),
-    (["--scene", "lattice:m=2,dt=0"], "dt = 0.0"),
+    (["--scene", "lattice:m=0"], "m must be an integer >= 1, got 0"),
+    (["--scene", "lattice:m=2,dt=0"], "dt must be a finite number > 0, got 0.0"),
     (["--scene", "lattice:m=2,model=self", "--solver", "nope"], "unknown solver 'nope'"),
 ])
 def test_cli_simulate_errors_exit_2(tmp_path, capsys, argv, msg):

@@ -89,14 +89,21 @@ __all__ = ["rpy_matrix"]
 _CHUNK = 128
 
 
+def _regions(r: np.ndarray, ai: np.ndarray, aj: np.ndarray):
+    """Empty coefficient arrays and the three regimes of a pair at distance ``r``.
+
+    ``far``: disjoint spheres (``r >= ai + aj``); ``inside``: one sphere inside the
+    other (``r <= |ai - aj|``); ``ovl``: overlapping otherwise.
+    """
+    far = r >= ai + aj
+    inside = ~far & (r <= np.abs(ai - aj))
+    return np.empty_like(r), np.empty_like(r), far, ~far & ~inside, inside
+
+
 def _translation_coefficients(r: np.ndarray, ai: np.ndarray, aj: np.ndarray
                               ) -> tuple[np.ndarray, np.ndarray]:
     """Coefficients ``(c_I, c_rr)`` of ``tt = c_I I + c_rr rhat rhat`` for ``mu = 1``."""
-    cI = np.empty_like(r)
-    cr = np.empty_like(r)
-    far = r >= ai + aj
-    inside = ~far & (r <= np.abs(ai - aj))
-    ovl = ~far & ~inside
+    cI, cr, far, ovl, inside = _regions(r, ai, aj)
 
     x, p, q = r[far], ai[far], aj[far]
     s2 = p * p + q * q
@@ -119,11 +126,7 @@ def _translation_coefficients(r: np.ndarray, ai: np.ndarray, aj: np.ndarray
 def _rotation_coefficients(r: np.ndarray, ai: np.ndarray, aj: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Coefficients ``(c_I, c_rr)`` of ``rr = c_I I + c_rr rhat rhat`` for ``mu = 1``."""
-    cI = np.empty_like(r)
-    cr = np.empty_like(r)
-    far = r >= ai + aj
-    inside = ~far & (r <= np.abs(ai - aj))
-    ovl = ~far & ~inside
+    cI, cr, far, ovl, inside = _regions(r, ai, aj)
 
     x = r[far]
     x3 = x ** 3

@@ -40,12 +40,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Annotated, Any, Literal, Optional
 
 import numpy as np
 from scipy.spatial.distance import pdist
 
 from lcpbench.core.registry import make_scene, register_scene
+from lcpbench.core.specs import Bounds, CheckedParams
 
 from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
 from .geometry import pair_gaps
@@ -55,7 +56,7 @@ __all__ = ["LatticeParams", "LatticeScene", "StepRecord", "lattice_configuration
 
 
 @dataclass(frozen=True)
-class LatticeParams:
+class LatticeParams(CheckedParams):
     """Parameters of the lattice scene (CLI: ``lattice:m=3,model=rpy,dt=0.1``).
 
     Parameters
@@ -105,46 +106,26 @@ class LatticeParams:
         ``benchmarks/mobility_accuracy.py``).
     """
 
-    m: int = 3
-    p: int = 8
-    model: str = "rpy"
-    eps_gmres: float = 1e-8
-    radius: float = 1.0
-    polydisperse: float = 0.0
-    dt: float = 0.1
-    delta: float = 0.3
+    m: Annotated[int, Bounds(ge=1)] = 3
+    p: Annotated[int, Bounds(ge=1)] = 8
+    model: Literal["rpy", "bim", "self"] = "rpy"
+    eps_gmres: Annotated[float, Bounds(gt=0, lt=1)] = 1e-8
+    radius: Annotated[float, Bounds(gt=0)] = 1.0
+    polydisperse: Annotated[float, Bounds(ge=0, lt=1)] = 0.0
+    dt: Annotated[float, Bounds(gt=0)] = 0.1
+    delta: Annotated[float, Bounds(ge=0)] = 0.3
     seed: int = 0
-    mu: float = 1.0
+    mu: Annotated[float, Bounds(gt=0)] = 1.0
     low: tuple[str, ...] = ()
-    force: float = 1.0
-    torque: float = 1.0
-    spacing: float = 3.0
-    jitter: float = 0.5
-    target: float = 0.5
-    separation: float = 0.1
+    force: Annotated[float, Bounds(ge=0)] = 1.0
+    torque: Annotated[float, Bounds(ge=0)] = 1.0
+    spacing: Annotated[float, Bounds(gt=0)] = 3.0
+    jitter: Annotated[float, Bounds(ge=0)] = 0.5
+    target: Annotated[float, Bounds(ge=0)] = 0.5
+    separation: Annotated[float, Bounds(ge=0)] = 0.1
 
     def __post_init__(self) -> None:
-        def bad(name, why):
-            raise ValueError(f"{name} = {getattr(self, name)!r} {why}")
-
-        if not isinstance(self.m, (int, np.integer)) or self.m < 1:
-            bad("m", "must be an integer >= 1 (the lattice has m^3 spheres)")
-        if self.p < 1:
-            bad("p", "must be >= 1 (spherical-harmonic order)")
-        if self.model not in ("rpy", "bim", "self"):
-            bad("model", "is unknown; use rpy, bim or self")
-        for name in ("dt", "radius", "mu", "spacing"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v > 0):
-                bad(name, "must be a finite positive number")
-        if not (0 < self.eps_gmres < 1):
-            bad("eps_gmres", "must lie in (0, 1)")
-        for name in ("delta", "force", "torque", "jitter", "target", "separation"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v >= 0):
-                bad(name, "must be a finite non-negative number")
-        if not (0 <= self.polydisperse < 1):
-            bad("polydisperse", "must lie in [0, 1) (relative spread of the radii)")
+        super().__post_init__()              # the declared bounds
         for name in self.low:
             parse_fidelity(name, self.p, self.eps_gmres)
 
