@@ -358,8 +358,9 @@ class Bounds:
     parameter dataclass that derives from :class:`CheckedParams` checks every
     declared bound when it is built (from the CLI, a sweep or Python), and the
     error names the parameter, what it accepts and the value given. In
-    ``tuple[Annotated[int, Bounds(...)], ...]`` the bound applies to every item.
-    String conversion ignores the annotation: it sees the plain type.
+    ``tuple[Annotated[int, Bounds(...)], ...]`` the bound applies to every item;
+    ``Literal`` fields are held to their choices the same way. String conversion
+    ignores the annotation: it sees the plain type.
 
     Attributes
     ----------
@@ -404,6 +405,9 @@ def _check_value(label: str, tp: Any, value: Any) -> None:
             if isinstance(value, bool) or not number or not bound.admits(value):
                 raise ValueError(f"{label} must be {bound.describe(integer)}, got {value!r}")
         _check_value(label, base, value)
+    elif origin is typing.Literal and value not in typing.get_args(tp):
+        raise ValueError(f"{label} must be one of "
+                         f"{', '.join(map(repr, typing.get_args(tp)))}, got {value!r}")
     elif origin in (tuple, list) and isinstance(value, (tuple, list)):
         item_t = typing.get_args(tp)[0] if typing.get_args(tp) else Any
         for item in value:
@@ -411,7 +415,7 @@ def _check_value(label: str, tp: Any, value: Any) -> None:
 
 
 def check_bounds(params: Any) -> None:
-    """Check every field of the parameter dataclass ``params`` against its declared :class:`Bounds`.
+    """Check the fields of parameter dataclass ``params``: :class:`Bounds`, ``Literal`` choices.
 
     Raises
     ------
