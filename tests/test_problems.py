@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
 import numpy as np
 import pytest
 
 import lcpbench
 from lcpbench.core.registry import get_problem
-from lcpbench.core.specs import make_params
+from lcpbench.core.specs import Bounds, CheckedParams, make_params
 from lcpbench.core.residuals import kkt_abs
 
 #: Every family with small parameters (fast), and whether it is seeded.
@@ -224,3 +227,16 @@ def test_declared_bounds_hold_for_direct_construction():
     assert params(count=np.int64(2), cond=1).count == 2
     assert get_problem("siconos").params(path="x", symmetrize_rtol=np.inf).symmetrize_rtol \
         == np.inf
+
+
+def test_checked_params_hold_literal_choices_and_strict_bounds():
+    @dataclass(frozen=True)
+    class Params(CheckedParams):
+        mode: Literal["a", "b"] = "a"
+        k: Annotated[int, Bounds(ge=0, lt=5)] = 1
+
+    assert make_params("x", Params, {"mode": "b", "k": "4"}) == Params("b", 4)
+    with pytest.raises(ValueError, match="mode must be one of 'a', 'b', got 'c'"):
+        Params(mode="c")
+    with pytest.raises(ValueError, match="k must be an integer >= 0 and < 5, got 5"):
+        Params(k=5)
