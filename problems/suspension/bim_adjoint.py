@@ -29,7 +29,7 @@ from .kernels_adjoint import (
     direct_traction_adjoint_skip,
     traction_expansion_adjoint,
 )
-from .sphere_vsh import _coefficient_matrix, sphere_grid
+from .sphere_vsh import SphereGrid, _coefficient_matrix, sphere_grid
 
 if TYPE_CHECKING:
     from .bim import BimMobility
@@ -115,7 +115,8 @@ class AdjointPieces:
             self.blk_ptr = np.searchsorted(plan.block_src[order],
                                            np.arange(op.M + 1)).astype(np.int64)
 
-    def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid, projected: bool) -> dict:
+    def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid: SphereGrid,
+                   projected: bool) -> dict:
         """Structures of one group of on-the-fly expansion pairs (target lists ``ptr``/``idx``)
         evaluated on ``grid``: target points and pairs by source sphere."""
         op = self.op

@@ -12,8 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels import traction_response
-from .sphere_vsh import (_expansion_factors, grid_levels, quadrature_radius, sampled_basis,
-                         sphere_grid)
+from .sphere_vsh import (
+    SphereGrid,
+    VSHBasis,
+    _expansion_factors,
+    grid_levels,
+    quadrature_radius,
+    sampled_basis,
+    sphere_grid,
+)
 
 __all__ = ["PairPlan", "PROJECT_RHO", "RELAX_STEP", "csr"]
 
@@ -56,11 +63,12 @@ class PairPlan:
         Quadrature accuracy of the full-accuracy rung.
     far : {"direct", "fmm"}
         Far-field engine (the FMM works on the native grid and is not relaxed).
-    grid, near_grid : sphere_vsh grids
+    grid, near_grid : SphereGrid
         Native order-p grid and the finer grid of the projected near field.
     near_proj : ndarray or None
         Projection from the finer grid onto degree p (None: node sampling).
-    basis : sphere_vsh VSH basis of order p.
+    basis : VSHBasis
+        Vector spherical harmonics of order p (analysis, synthesis, complex form).
     near_block_mb : float
         Memory budget of the stored blocks.
     all_expansion : bool
@@ -91,8 +99,9 @@ class PairPlan:
     """
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, p: int, quad_tol: float,
-                 far: str, grid, near_grid, near_proj: np.ndarray | None, basis,
-                 near_block_mb: float, all_expansion: bool = False) -> None:
+                 far: str, grid: SphereGrid, near_grid: SphereGrid,
+                 near_proj: np.ndarray | None, basis: VSHBasis, near_block_mb: float,
+                 all_expansion: bool = False) -> None:
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], p
         self.quad_tol, self.far = quad_tol, far
         self.grid, self.near_grid, self.near_proj = grid, near_grid, near_proj
