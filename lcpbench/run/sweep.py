@@ -31,6 +31,7 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+from lcpbench.core.residuals import STOP_RULES
 from lcpbench.core.registry import get_problem, get_solver, make_params, parse_spec, problems, solvers, \
     split_top_level
 
@@ -167,8 +168,8 @@ class Sweep:
             raise ValueError("the sweep has no solver; give --solver NAME (see `lcpbench list`)")
         if not self.problems:
             raise ValueError("the sweep has no problem; give --problem NAME (see `lcpbench list`)")
-        if self.stop not in ("paper", "kkt"):
-            raise ValueError(f"stop must be 'paper' or 'kkt', got {self.stop!r}")
+        if self.stop not in STOP_RULES:
+            raise ValueError(f"stop must be one of {', '.join(STOP_RULES)}, got {self.stop!r}")
         if not self.tol > 0:
             raise ValueError(f"tol must be > 0, got {self.tol}")
         if self.repeat < 1:
