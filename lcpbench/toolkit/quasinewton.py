@@ -22,13 +22,28 @@ from typing import Callable, Optional
 
 import numpy as np
 
-__all__ = ["DiagonalBFGS", "OperatorBFGS", "bb2_scale"]
+__all__ = ["DiagonalBFGS", "OperatorBFGS", "bb2_scale", "free_secant_pair"]
 
 
 def bb2_scale(s: np.ndarray, y: np.ndarray) -> float:
     """Barzilai-Borwein (BB2) step ``s'y / y'y`` (inverse curvature estimate)."""
     yy = float(y @ y)
     return float(s @ y) / yy if yy > 0 else 1.0
+
+
+def free_secant_pair(x: np.ndarray, w: np.ndarray, b: np.ndarray
+                     ) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """The secant pair ``(x - 0, A x - A 0)`` a warm start gives for free.
+
+    With ``w = A x + b`` already computed, ``A x = w - b`` and ``A 0 = 0`` needs
+    no product, so ``(s, y) = (x, w - b)`` is a secant pair of ``A`` at no cost
+    (the authors' code seeds its quasi-Newton memory and BB-PGD's first step
+    with it). None when ``x = 0`` or the pair has no positive curvature.
+    """
+    if not np.any(x):
+        return None
+    y = w - b
+    return (x, y) if _accept(x, y, 1e-12) else None
 
 
 def _accept(s: np.ndarray, y: np.ndarray, tol: float) -> bool:
