@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/fidelity_map.py                 # both shipped sets, the table of docs/benchmarks.md
     python benchmarks/fidelity_map.py --sets lattice-bim-m4 --instances 0-4
+    python benchmarks/fidelity_map.py --errors 0.5,1e-3 --no-oracle   # the targets
 
 For every stored set, every instance gets low fidelities ``A + E`` with
 ``||E||_2 / ||A||_2`` = 1e-1 ... 1e-6, ``E`` random symmetric or shaped like the
@@ -76,8 +77,11 @@ def _median(v) -> float:
     return float(np.median(v)) if len(v) else float("nan")
 
 
-def set_rows(path: str, instances: str, oracle: bool) -> list[dict]:
-    lcps = synthetic_low(SyntheticLowParams(path=path, instances=instances))
+def set_rows(path: str, instances: str, oracle: bool, errors: tuple = ()) -> list[dict]:
+    params = SyntheticLowParams(path=path, instances=instances)
+    if errors:
+        params = SyntheticLowParams(path=path, instances=instances, errors=errors)
+    lcps = synthetic_low(params)
     base = {s: _median([lcpbench.solve(l, solver=s, tol=TOL).emvps for l in lcps])
             for s in ("bb-pgd", "mono-pqn")}
     groups: dict = defaultdict(lambda: defaultdict(list))
@@ -112,13 +116,16 @@ def main() -> None:
     ap.add_argument("--sets", default="lattice-bim-m3,lattice-bim-m4",
                     help="comma-separated stored sets (shipped names or .h5 files)")
     ap.add_argument("--instances", default="", help="positions per set, e.g. 0-9 (default all)")
+    ap.add_argument("--errors", default="", help="relative errors of the synthetic lows, "
+                    "e.g. 0.5,1e-3 (default 1e-1 ... 1e-6)")
     ap.add_argument("--no-oracle", action="store_true", help="skip the exact-subproblem oracle")
     args = ap.parse_args()
     print("| set | low | rel. error | Bi-PQN high MVPs | oracle high MVPs | Bi-PQN E-MVPs | "
           "vs BB-PGD | vs Mono-PQN | solved |")
     print("|---|---|---|---|---|---|---|---|---|")
     for path in args.sets.split(","):
-        for r in set_rows(path, args.instances, not args.no_oracle):
+        errors = tuple(float(e) for e in args.errors.split(",") if e.strip())
+        for r in set_rows(path, args.instances, not args.no_oracle, errors):
             print(f"| {r['set']} | {r['low']} | {r['rel_error']:.2g} | {r['bi_high']:.1f} | "
                   f"{r['oracle_high']:.1f} | {r['bi_emvps']:.2f} | {r['vs_bb']:.2f}x | "
                   f"{r['vs_mono']:.2f}x | {r['solved']} |", flush=True)
