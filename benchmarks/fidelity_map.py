@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/fidelity_map.py                 # both shipped sets, the table of docs/benchmarks.md
+    python benchmarks/fidelity_map.py     # both shipped sets: the table of docs/benchmarks.md
     python benchmarks/fidelity_map.py --sets lattice-bim-m4 --instances 0-4
     python benchmarks/fidelity_map.py --errors 0.5,1e-3 --no-oracle   # the targets
 
@@ -101,7 +101,8 @@ def set_rows(path: str, instances: str, oracle: bool, errors: tuple = ()) -> lis
                 g["oracle"].append(oracle_high_mvps(A, dense_uncounted(lcp.low[name]), b))
         progress(path, lcp.name)
     rows = []
-    for (shape, _), g in sorted(groups.items(), key=lambda kv: (kv[0][0], -np.median(kv[1]["err"]))):
+    order = sorted(groups.items(), key=lambda kv: (kv[0][0], -np.median(kv[1]["err"])))
+    for (shape, _), g in order:
         e = _median(g["emvps"])
         rows.append({"set": path, "low": shape, "rel_error": _median(g["err"]),
                      "bi_high": _median(g["hi"]), "bi_emvps": e,

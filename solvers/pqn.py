@@ -1,8 +1,8 @@
 """Proximal quasi-Newton solvers: ``mono-pqn``, ``bi-pqn`` and the ``multi-pqn`` extension.
 
-The method paper's sections "A Proximal Quasi-Newton Method" (algorithm pqn),
-"Mono-PQN Step Size Selection" (algorithm stepSize), "A Bifidelity Proximal
-Quasi-Newton Method" (algorithm bpqn) and appendices "Fast Solutions to Weighted
+The method paper's sections "A Proximal Quasi-Newton Method" (the paper's Mono-PQN algorithm),
+"Mono-PQN Step Size Selection" (the paper's step-size algorithm), "A Bifidelity Proximal
+Quasi-Newton Method" (the paper's Bi-PQN algorithm) and appendices "Fast Solutions to Weighted
 Proximal Operator" and "Bifidelity Proximal Quasi-Newton". The iteration itself
 lives in :mod:`lcpbench.toolkit.pqn_levels`; this module wires it to the solver
 context and documents every choice.
@@ -47,12 +47,13 @@ _MONO_DOC = """
         paper uses full memory since it converges in about ten iterations).
     scaling : str
         ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
-        authors' code does; ``identity``: ``D = I`` as written in algorithm pqn.
+        authors' code does; ``identity``: ``D = I`` as written in the paper's Mono-PQN algorithm.
         ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
     gamma : float
         Damping of the BB2 scaling (authors' value 0.8).
     prox_tol : float
-        Tolerance of the semi-smooth Newton root solve of Proposition prop-nnProx.
+        Tolerance of the semi-smooth Newton root solve of the weighted prox (the
+        paper's proposition on the weighted non-negative prox).
     prox_max_iter : int
         Newton iterations before the weighted prox falls back to an accelerated
         projected gradient solve in the metric (reported as ``prox_fallbacks``).
@@ -68,7 +69,7 @@ _MONO_DOC = """
 
 _INNER_DOC = """
     start : str
-        ``low`` (default, the paper's algorithm bpqn): solve the low-fidelity LCP
+        ``low`` (default, the paper's Bi-PQN algorithm): solve the low-fidelity LCP
         from ``x0`` first, with no high-fidelity product, then take the first
         high MVP at its answer, which also gives a free secant pair and the
         first model check. ``high``: the previous start, ``A x0`` first and a
@@ -186,14 +187,14 @@ def _start(ctx: SolverContext):
 
 @register_solver("mono-pqn", MonoPQNParams)
 def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
-    """Mono-fidelity proximal quasi-Newton method (algorithm pqn of the method paper).
+    """Mono-fidelity proximal quasi-Newton method (the method paper's Mono-PQN algorithm).
 
     Each iteration: ``x~ = x - H g`` with ``H = B^-1`` applied by the BFGS
     two-loop recursion in O(n r); ``x^ = prox^B(x~)`` by Proposition
     prop-nnProx (semi-smooth Newton on the 2r-dimensional root problem,
-    algorithm semiSmoothNewton; closed form ``max(x~, 0)`` while ``r = 0``);
+    the paper's semi-smooth Newton algorithm; closed form ``max(x~, 0)`` while ``r = 0``);
     ``p = x^ - x``; one MVP ``A p``; the optimal over-relaxation ``eta*`` of
-    algorithm stepSize from the cached ``A p``; ``x+ = x + eta p``,
+    the paper's step-size algorithm from the cached ``A p``; ``x+ = x + eta p``,
     ``A x+ = A x + eta A p``; BFGS update with ``(eta p, eta A p)`` (Nocedal &
     Wright, ch. 6), pairs with ``s'y <= 0`` skipped. The paper's choices:
     full memory, optimal step (not unit), and the stopping rule of eq.
@@ -263,17 +264,17 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
 
 @register_solver("bi-pqn", BiPQNParams, multifidelity=True)
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
-    """Bi-fidelity proximal quasi-Newton method (algorithm bpqn of the method paper).
+    """Bi-fidelity proximal quasi-Newton method (the method paper's Bi-PQN algorithm).
 
     ``B^(0) = A_low`` (the operator named by ``low``); each outer iteration
-    solves the subproblem of eq. pqnSubproblem,
+    solves the paper's PQN subproblem,
     ``min_{z>=0} 1/2 z'Bz + (A x + b - B x)'z``, by Mono-PQN with B-products (one
     low-fidelity MVP plus O(n r) each), warm-started at ``x`` where its gradient
     is the known ``A x + b``; the subproblem's secant pairs are carried to the
     next one with ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem
     Secant Conditions"); the BFGS correction of ``B`` takes ``B s`` from the
     inner gradients (no extra low MVP); one high-fidelity MVP ``A p`` per outer
-    iteration and the optimal over-relaxation of algorithm stepSize. Start:
+    iteration and the optimal over-relaxation of the paper's step-size algorithm. Start:
     the paper's low-fidelity initialisation (Mono-PQN on the low-fidelity
     problem from ``x^(-1) = x0``, no high-fidelity product before it), then
     the first high MVP at its answer ``x^(0)``, which also gives the free
@@ -282,9 +283,9 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     tolerances that follow the outer residual (``forcing``), and a model check
     from the high gradient each step already yields, which hands a useless low
     fidelity's solve to Mono-PQN (``model_tol``; ``info['decisions']``,
-    ``info['model_errors']``, ``info['forcing']``). Robustness beyond the paper: if the model is not positive
-    along ``p``, ``p`` does not descend, or the subproblem is unbounded (an
-    indefinite ``A_low``), a Mono-PQN step on the high-fidelity pairs is taken
+    ``info['model_errors']``, ``info['forcing']``). Robustness beyond the
+    paper: if the model is not positive along ``p``, ``p`` does not descend,
+    or the subproblem is unbounded (an indefinite ``A_low``), a Mono-PQN step on the high-fidelity pairs is taken
     instead (``info['mono_fallbacks']``). The paper's choices: full memory,
     BFGS updates stored unrolled. ``result.state`` carries the high-fidelity
     pairs for the next time step (the model is rebuilt on the new ``A_low``

@@ -88,6 +88,10 @@ def _figure_svg(table: pd.DataFrame, column: str, ylabel: str) -> str:
     return plots.svg_of(fig)
 
 
+def _figure(table: pd.DataFrame, column: str, ylabel: str, key: str) -> str:
+    return f'<div class="fig">{plots.prefix_ids(_figure_svg(table, column, ylabel), key)}</div>'
+
+
 def fidelity_map_section(results: pd.DataFrame) -> tuple[str, pd.DataFrame]:
     """HTML of the section and its table (``("", empty)`` when the store has no such runs)."""
     table = fidelity_map_table(results)
@@ -101,6 +105,6 @@ def fidelity_map_section(results: pd.DataFrame) -> tuple[str, pd.DataFrame]:
              "error) and the set's real lows (stars). Dotted: the best single-fidelity "
              "solver's median E-MVPs on the same problem. The exact-subproblem oracle floor: "
              f"{html.escape('python benchmarks/fidelity_map.py')}.</p>", body,
-             f'<div class="fig">{plots.prefix_ids(_figure_svg(table, "high_mvps", "median high-fidelity MVPs"), "fm1_")}</div>',
-             f'<div class="fig">{plots.prefix_ids(_figure_svg(table, "emvps", "median E-MVPs"), "fm2_")}</div>']
+             _figure(table, "high_mvps", "median high-fidelity MVPs", "fm1_"),
+             _figure(table, "emvps", "median E-MVPs", "fm2_")]
     return "\n".join(parts), table

@@ -11,9 +11,9 @@ The gradient is tracked by the recurrence ``G <- G + eta Q p`` so each
 iteration costs exactly one product with ``Q`` (section "Mono-PQN Step Size
 Selection", remark "Computing eta* requires no extra MVPs").
 
-* :func:`mono_level` is algorithm pqn (Mono-PQN) on that quadratic.
-* :func:`bi_level` is algorithm bpqn (Bi-PQN): its subproblem (eq.
-  pqnSubproblem) is solved by the next level down, which is :func:`mono_level`
+* :func:`mono_level` is the paper's Mono-PQN algorithm on that quadratic.
+* :func:`bi_level` is the paper's Bi-PQN algorithm: its PQN subproblem is
+  solved by the next level down, which is :func:`mono_level`
   for Bi-PQN and another :func:`bi_level` for the multi-fidelity chain.
 
 Levels exchange secant pairs as :class:`Pairs` (``S``, ``Y = Q S`` and, when
@@ -160,7 +160,7 @@ class LevelOutcome:
 
 def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoOptions,
                   counters: Counters) -> Optional[np.ndarray]:
-    """The Mono-PQN direction ``p = prox^B(z - H G) - z`` (eq. prox-pqn).
+    """The Mono-PQN direction ``p = prox^B(z - H G) - z`` (the paper's PQN step).
 
     Falls back to the projected-gradient direction with step ``1/d`` when the
     prox step does not descend (an inexact prox); returns None when no descent
@@ -284,7 +284,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
              ) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
-    Each outer iteration solves eq. pqnSubproblem,
+    Each outer iteration solves the paper's PQN subproblem,
     ``min_{z>=0} 1/2 (z - x)' B (z - x) + g'(z - x)`` with ``B = lows[0] + U U' - V V'``,
     whose gradient ``B (z - x) + g`` is free at ``z = x``; every inner
     iteration costs one product with ``lows[0]`` plus ``O(n r)``. The inner
@@ -432,7 +432,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
 
 def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
               exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float):
-    """The paper's initialisation (algorithm bpqn, line 1): the low-fidelity LCP first.
+    """The paper's initialisation (Bi-PQN algorithm, line 1): the low-fidelity LCP first.
 
     ``min_{z>=0} 1/2 z' L z + b'z`` with ``L = lows[0]`` is solved from ``z``
     (Mono-PQN, or Bi-PQN on ``lows[1:]`` for a chain) to ``warm_rtol`` times
@@ -468,7 +468,8 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
         out, inner_state = _solve_sub(L, lows, z, Gl, stop, opts.warm_max_iter, opts, counters,
                                       None)
     counters.inner_iterations += out.iterations
-    if out.reason == "unbounded" or not np.all(np.isfinite(out.z)) or not np.all(np.isfinite(out.G)):
+    if out.reason == "unbounded" or not (np.all(np.isfinite(out.z))
+                                         and np.all(np.isfinite(out.G))):
         counters.decisions.append("start:x0")
         return z, exact_gradient(z), None, None, None
     z1 = out.z
@@ -508,7 +509,7 @@ def forcing_term(rate: Optional[float], opts: BiOptions) -> float:
 
 def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Callable,
                cap: int, opts: BiOptions, counters: Counters, inner_state):
-    """The subproblem of eq. pqnSubproblem by the next level down (Mono-PQN or Bi-PQN)."""
+    """The paper's PQN subproblem, solved by the next level down (Mono-PQN or Bi-PQN)."""
     if len(lows) == 1:
         inner = mono_level(B, z, G, stop, cap, opts, counters,
                            seed=inner_state if isinstance(inner_state, Pairs) else None,
