@@ -92,7 +92,11 @@ _INNER_DOC = """
     warm_rtol : float
         Relative tolerance of the low-fidelity start (``start=low``: of the
         low-fidelity LCP's residual at ``x0``; ``start=high``: of the first
-        subproblem).
+        subproblem). Before the first high product nothing measures the
+        model, so the start cannot follow it; the forcing term takes over at
+        the first outer step, whose tolerance the start's model check sets
+        (``warm_rtol=1e-5`` saves a high MVP with a low accurate to 1e-4 and
+        costs the real BIM lows low products: docs/benchmarks.md).
     warm_max_iter : int
         Iteration cap of the low-fidelity start.
     model_tol : float
