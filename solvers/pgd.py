@@ -27,6 +27,8 @@ import numpy as np
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.toolkit.quasinewton import free_secant_pair
+from lcpbench.toolkit.steps import cauchy_step
 
 __all__ = ["BBPGDParams", "APGDParams", "bb_pgd", "a_pgd", "power_iteration"]
 
@@ -79,6 +81,10 @@ class BBPGDParams:
         Sufficient-decrease constant ``gamma`` in ``f(x + d) <= f_max + gamma
         w'd`` (default 1e-4; must be in (0, 1/2] so that the exact line
         minimiser always passes). Only with ``safeguard=true``.
+    free_pair : bool
+        True (default): with a nonzero warm start, the first step is the BB
+        step of the free secant pair ``(x0, A x0)`` instead of the Cauchy step
+        (which costs one product).
     """
 
     variant: str = "bb1"
@@ -86,6 +92,7 @@ class BBPGDParams:
     memory: int = 3
     armijo: float = 1e-4
     reference: str = "adaptive"
+    free_pair: bool = True
 
     def __post_init__(self) -> None:
         if self.variant not in _BB_VARIANTS:
@@ -142,8 +149,11 @@ def bb_pgd(ctx: SolverContext, p: BBPGDParams) -> SolveResult:
     spectralStepSize; Yan, Corona et al., J. Comput. Phys. 2020, found it the
     best method for boundary-integral collision resolution): one MVP per
     iteration, no line search. As in the authors' ``BBPGD_matfree.m``, the first
-    step is the Cauchy step ``tau_0 = w'w / w'Aw`` of the unconstrained
-    quadratic (one counted product ``A w``).
+    step is the BB step of the free secant pair ``(x0, A x0)`` when the warm
+    start ``x0`` is not zero (``A x0`` is known from the first gradient, ``A 0 =
+    0``), else the Cauchy step ``tau_0 = w'w / w'Aw`` of the unconstrained
+    quadratic (one counted product ``A w``); ``free_pair=false`` always takes
+    the Cauchy step.
 
     Choices the source leaves open (lcpbench's, documented): when
     ``s'y <= 0`` (``s`` in the null space of a singular PSD ``A``, or no move)
@@ -160,9 +170,12 @@ def bb_pgd(ctx: SolverContext, p: BBPGDParams) -> SolveResult:
                     line_search_cuts=0)
     if ctx.report(x, w):
         return ctx.finish(x, w)
-    Aw = ctx.A @ w
-    wAw = float(w @ Aw)
-    tau = float(w @ w) / wAw if wAw > 0.0 else 1.0
+    pair = free_secant_pair(x, w, b) if p.free_pair else None
+    if pair is not None:
+        s0, y0 = pair
+        tau = _bb_step(p.variant, 1, float(s0 @ s0), float(s0 @ y0), float(y0 @ y0))
+    else:
+        tau = cauchy_step(w, ctx.A @ w)
     if not np.isfinite(tau) or tau <= 0.0:
         tau = 1.0
     f = _objective(x, w, b)

@@ -1,10 +1,10 @@
 """Proximal quasi-Newton solvers: ``mono-pqn``, ``bi-pqn`` and the ``multi-pqn`` extension.
 
-The method paper's sections "A Proximal Quasi-Newton Method" (algorithm pqn),
-"Mono-PQN Step Size Selection" (algorithm stepSize), "A Bifidelity Proximal
-Quasi-Newton Method" (algorithm bpqn) and appendices "Fast Solutions to Weighted
+The method paper's sections "A Proximal Quasi-Newton Method" (the paper's Mono-PQN algorithm),
+"Mono-PQN Step Size Selection" (the paper's step-size algorithm), "A Bifidelity Proximal
+Quasi-Newton Method" (the paper's Bi-PQN algorithm) and appendices "Fast Solutions to Weighted
 Proximal Operator" and "Bifidelity Proximal Quasi-Newton". The iteration itself
-lives in :mod:`lcpbench.solvers.pqn_levels`; this module wires it to the solver
+lives in :mod:`lcpbench.toolkit.pqn_levels`; this module wires it to the solver
 context and documents every choice.
 
 MVPs per iteration
@@ -12,9 +12,12 @@ MVPs per iteration
 * ``mono-pqn``: ``A x0`` once (free at ``x0 = 0``), then exactly one
   high-fidelity MVP ``A p`` per iteration (plus one every ``recompute_every``
   iterations, if set).
-* ``bi-pqn``: per outer iteration one high-fidelity MVP ``A p`` and one
+* ``bi-pqn``: the low-fidelity start (one low MVP for its gradient at ``x0``,
+  free at ``x0 = 0``, then one per iteration of the low solve), one high MVP at
+  its answer, then per outer iteration one high-fidelity MVP ``A p`` and one
   low-fidelity MVP per inner iteration (plus one low MVP per Mono-PQN fallback
-  step, to keep the model's update exact).
+  step, to keep the model's update exact); none once the model check has
+  handed the solve to Mono-PQN.
 * ``multi-pqn``: as ``bi-pqn`` with the subproblem solved by Bi-PQN on the next
   cheaper operator, recursively.
 """
@@ -28,11 +31,12 @@ from typing import Optional
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
-
-from .pqn_levels import Counters, LevelOptions, Pairs, bi_level, mono_level
+from lcpbench.toolkit.confirm import ConfirmedReport
+from lcpbench.toolkit.pqn_levels import (BiOptions, Counters, MonoOptions, Pairs, bi_level,
+                                         low_start, mono_level)
+from lcpbench.toolkit.quasinewton import free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
 
@@ -43,12 +47,13 @@ _MONO_DOC = """
         paper uses full memory since it converges in about ten iterations).
     scaling : str
         ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
-        authors' code does; ``identity``: ``D = I`` as written in algorithm pqn.
+        authors' code does; ``identity``: ``D = I`` as written in the paper's Mono-PQN algorithm.
         ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
     gamma : float
         Damping of the BB2 scaling (authors' value 0.8).
     prox_tol : float
-        Tolerance of the semi-smooth Newton root solve of Proposition prop-nnProx.
+        Tolerance of the semi-smooth Newton root solve of the weighted prox (the
+        paper's proposition on the weighted non-negative prox).
     prox_max_iter : int
         Newton iterations before the weighted prox falls back to an accelerated
         projected gradient solve in the metric (reported as ``prox_fallbacks``).
@@ -56,82 +61,70 @@ _MONO_DOC = """
         Recompute ``A x`` exactly (one extra MVP) every this many iterations to
         bound the drift of the recurrence ``A x+ = A x + eta A p``; 0 never.
         Default 50: far beyond the paper's ten-odd iterations, so the extra MVP
-        appears only on hard problems."""
+        appears only on hard problems.
+    free_pair : bool
+        With a nonzero warm start ``x0``, seed the BFGS memory with the free
+        secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
+        gradient and ``A 0 = 0`` (as the authors' code does)."""
 
 _INNER_DOC = """
+    start : str
+        ``low`` (default, the paper's Bi-PQN algorithm): solve the low-fidelity LCP
+        from ``x0`` first, with no high-fidelity product, then take the first
+        high MVP at its answer, which also gives a free secant pair and the
+        first model check. ``high``: the previous start, ``A x0`` first and a
+        first subproblem solved to ``warm_rtol`` (also used when ``state``
+        carries a previous time step's pairs).
     inner_rtol : float
-        The subproblem (eq. pqnSubproblem) is solved until its residual
-        ``||min(z, B(z - x) + g)||`` falls below ``inner_rtol`` times its value at
-        ``z = x`` (which is the outer residual).
+        Largest relative tolerance of a subproblem: it is solved until its
+        residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
+        at ``z = x`` (the outer residual), ``eta = min(inner_rtol, forcing *
+        rate)``, ``rate`` the smaller of the model's measured error and the last
+        ratio of outer residuals (an Eisenstat-Walker forcing term; see
+        ``lcpbench.toolkit.pqn_levels.forcing_term``). An accurate model is so
+        solved to its accuracy, a poor one is not over-solved.
+    forcing : float
+        Safety factor of the forcing term (default 0.5).
     inner_max_iter : int
         Inner iteration cap per subproblem.
     inner_memory : int
         Low-fidelity pairs carried across subproblems (0: all).
     warm_rtol : float
-        Relative tolerance of the low-fidelity initialisation (the first
-        subproblem, algorithm bpqn line 1).
+        Relative tolerance of the low-fidelity start (``start=low``: of the
+        low-fidelity LCP's residual at ``x0``; ``start=high``: of the first
+        subproblem). Before the first high product nothing measures the
+        model, so the start cannot follow it; the forcing term takes over at
+        the first outer step, whose tolerance the start's model check sets
+        (``warm_rtol=1e-5`` saves a high MVP with a low accurate to 1e-4 and
+        costs the real BIM lows low products: docs/benchmarks.md).
     warm_max_iter : int
-        Iteration cap of the low-fidelity initialisation.
+        Iteration cap of the low-fidelity start.
+    model_tol : float
+        The model check: after every high MVP the high gradient is known, and
+        ``||(A - B) p|| / ||A p||`` (``info['model_errors']``) says how well the
+        model predicted it. Above ``model_tol`` the low fidelity is judged
+        useless and the solve finishes as Mono-PQN on the high-fidelity pairs
+        gathered so far (``info['abandoned_low']``; ``info['decisions']`` lists
+        every step's choice), so a useless ``A_low`` costs about its start.
+        Default 0.5: the real p = 3 and p = 4 BIM lows measure 0.1-0.6, a 50%
+        random error 0.7-0.85, RPY 1.5.
     max_fallbacks : int
-        After this many consecutive Mono-PQN fallbacks the low-fidelity model is
-        abandoned and the solve finishes as Mono-PQN on the high-fidelity pairs
-        (``info['abandoned_low']``), so a useless ``A_low`` costs at most this
-        many wasted subproblems; 0 never abandons it."""
+        After this many consecutive Mono-PQN fallbacks (a subproblem answer
+        that does not descend) the low-fidelity model is abandoned likewise;
+        0 never abandons it on that ground."""
 
 
 @dataclass(frozen=True)
-class MonoPQNParams:
-    memory: int = 0
-    scaling: str = "bb"
-    gamma: float = 0.8
-    prox_tol: float = 1e-12
-    prox_max_iter: int = 100
-    recompute_every: int = 50
-
-    def __post_init__(self) -> None:
-        if self.memory < 0:
-            raise ValueError("memory must be >= 0 (0 keeps every pair)")
-        if self.scaling not in ("bb", "identity"):
-            raise ValueError(f"scaling must be 'bb' or 'identity', got {self.scaling!r}")
-        if not 0 < self.gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
-        if not self.prox_tol > 0 or self.prox_max_iter < 1:
-            raise ValueError("prox_tol must be > 0 and prox_max_iter >= 1")
-        if self.recompute_every < 0:
-            raise ValueError("recompute_every must be >= 0 (0 never recomputes)")
-
-    def options(self) -> LevelOptions:
-        extra = {k: getattr(self, k) for k in ("inner_rtol", "inner_max_iter", "inner_memory",
-                                                "warm_rtol", "warm_max_iter",
-                                                "max_fallbacks") if hasattr(self, k)}
-        return LevelOptions(memory=self.memory, scaling=self.scaling, gamma=self.gamma,
-                            prox_tol=self.prox_tol, prox_max_iter=self.prox_max_iter,
-                            recompute_every=self.recompute_every, **extra)
+class MonoPQNParams(MonoOptions):
+    pass
 
 
 MonoPQNParams.__doc__ = "Parameters of mono-pqn.\n\n    Parameters\n    ----------" + _MONO_DOC
 
 
 @dataclass(frozen=True)
-class BiPQNParams(MonoPQNParams):
+class BiPQNParams(BiOptions):
     low: str = ""
-    inner_rtol: float = 0.01
-    inner_max_iter: int = 20
-    inner_memory: int = 0
-    warm_rtol: float = 0.1
-    warm_max_iter: int = 50
-    max_fallbacks: int = 3
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.max_fallbacks < 0:
-            raise ValueError("max_fallbacks must be >= 0 (0: never abandon the low model)")
-        if not 0 < self.inner_rtol < 1 or not 0 < self.warm_rtol < 1:
-            raise ValueError("inner_rtol and warm_rtol must be in (0, 1)")
-        if self.inner_max_iter < 1 or self.warm_max_iter < 1:
-            raise ValueError("inner_max_iter and warm_max_iter must be >= 1")
-        if self.inner_memory < 0:
-            raise ValueError("inner_memory must be >= 0 (0 keeps every pair)")
 
 
 BiPQNParams.__doc__ = ("Parameters of bi-pqn.\n\n    Parameters\n    ----------\n"
@@ -144,6 +137,7 @@ BiPQNParams.__doc__ = ("Parameters of bi-pqn.\n\n    Parameters\n    ----------\
 @dataclass(frozen=True)
 class MultiPQNParams(BiPQNParams):
     lows: tuple[str, ...] = ()
+    start: str = "high"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -158,7 +152,14 @@ MultiPQNParams.__doc__ = BiPQNParams.__doc__.replace("Parameters of bi-pqn.", "P
     lows : list of str
         Low-fidelity operators from the most to the least accurate, e.g.
         ``lows=[p6,p4,p3]`` (empty: every low operator of the LCP, ordered by
-        decreasing cost)."""
+        decreasing cost).
+
+    multi-pqn's ``start`` defaults to ``high``: solving the first low problem
+    through the whole chain cost more than it saved on the shipped sets
+    (median E-MVPs with all lows, ``lattice-bim-m3`` 14.1 against 13.0,
+    ``lattice-bim-m4`` 11.3 against 10.5). Levels below the top solve their
+    subproblems to the fixed ``inner_rtol``: the forcing term follows the
+    high-fidelity residual, which only the top level sees."""
 
 
 def _seed(ctx: SolverContext) -> Optional[Pairs]:
@@ -190,14 +191,14 @@ def _start(ctx: SolverContext):
 
 @register_solver("mono-pqn", MonoPQNParams)
 def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
-    """Mono-fidelity proximal quasi-Newton method (algorithm pqn of the method paper).
+    """Mono-fidelity proximal quasi-Newton method (the method paper's Mono-PQN algorithm).
 
     Each iteration: ``x~ = x - H g`` with ``H = B^-1`` applied by the BFGS
     two-loop recursion in O(n r); ``x^ = prox^B(x~)`` by Proposition
     prop-nnProx (semi-smooth Newton on the 2r-dimensional root problem,
-    algorithm semiSmoothNewton; closed form ``max(x~, 0)`` while ``r = 0``);
+    the paper's semi-smooth Newton algorithm; closed form ``max(x~, 0)`` while ``r = 0``);
     ``p = x^ - x``; one MVP ``A p``; the optimal over-relaxation ``eta*`` of
-    algorithm stepSize from the cached ``A p``; ``x+ = x + eta p``,
+    the paper's step-size algorithm from the cached ``A p``; ``x+ = x + eta p``,
     ``A x+ = A x + eta A p``; BFGS update with ``(eta p, eta A p)`` (Nocedal &
     Wright, ch. 6), pairs with ``s'y <= 0`` skipped. The paper's choices:
     full memory, optimal step (not unit), and the stopping rule of eq.
@@ -210,8 +211,14 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     x, g = _start(ctx)
     counters = Counters()
     stop = ConfirmedReport(ctx)
-    out = mono_level(ctx.A.matvec, x, g, stop, sys.maxsize, p.options(), counters,
-                     seed=_seed(ctx), exact_gradient=stop.exact)
+    seed = _seed(ctx)
+    pair = free_secant_pair(x, g, ctx.b) if p.free_pair else None
+    if pair is not None:
+        seed = Pairs(list(seed.S) if seed else [], list(seed.Y) if seed else [])
+        seed.add(*pair)
+        ctx.info["free_pair"] = True
+    out = mono_level(ctx.A.matvec, x, g, stop, sys.maxsize, p, counters,
+                     seed=seed, exact_gradient=stop.exact)
     ctx.info["rank"] = len(out.pairs)
     return _finish(ctx, out, counters, {"pairs": out.pairs})
 
@@ -233,7 +240,7 @@ def _low_names(ctx: SolverContext, wanted: tuple, solver: str) -> list[str]:
 
 
 def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveResult:
-    x, g = _start(ctx)
+    x = np.maximum(ctx.x0, 0.0)
     counters = Counters()
     lows = [ctx.low[k].matvec for k in names]
     st = ctx.state if isinstance(ctx.state, dict) and ctx.state.get("n") == ctx.n and \
@@ -242,9 +249,18 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
     level_state = {"pairs": Pairs(list(st["pairs"].S), list(st["pairs"].Y),
                                   [None] * len(st["pairs"]))} if st else None
     stop = ConfirmedReport(ctx)
-    out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p.options(),
-                          counters, state=level_state, warm_start=True,
-                          exact_gradient=stop.exact)
+    floor = 0.1 * ctx.threshold
+    rho = r_prev = None
+    from_low = p.start == "low" and level_state is None
+    if from_low:
+        x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, stop.exact,
+                                                   floor)
+    else:
+        g = ctx.A @ x + ctx.b
+    out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p,
+                          counters, state=level_state, warm_start=not from_low,
+                          exact_gradient=stop.exact, floor=floor, model_error=rho,
+                          prev_residual=r_prev)
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
     return _finish(ctx, out, counters, {"pairs": state["pairs"], "lows": names})
@@ -252,22 +268,28 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
 
 @register_solver("bi-pqn", BiPQNParams, multifidelity=True)
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
-    """Bi-fidelity proximal quasi-Newton method (algorithm bpqn of the method paper).
+    """Bi-fidelity proximal quasi-Newton method (the method paper's Bi-PQN algorithm).
 
     ``B^(0) = A_low`` (the operator named by ``low``); each outer iteration
-    solves the subproblem of eq. pqnSubproblem,
+    solves the paper's PQN subproblem,
     ``min_{z>=0} 1/2 z'Bz + (A x + b - B x)'z``, by Mono-PQN with B-products (one
     low-fidelity MVP plus O(n r) each), warm-started at ``x`` where its gradient
     is the known ``A x + b``; the subproblem's secant pairs are carried to the
     next one with ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem
     Secant Conditions"); the BFGS correction of ``B`` takes ``B s`` from the
     inner gradients (no extra low MVP); one high-fidelity MVP ``A p`` per outer
-    iteration and the optimal over-relaxation of algorithm stepSize. Start:
+    iteration and the optimal over-relaxation of the paper's step-size algorithm. Start:
     the paper's low-fidelity initialisation (Mono-PQN on the low-fidelity
-    problem from ``x^(-1)``), here as the first subproblem solved to
-    ``warm_rtol``. Robustness beyond the paper: if the model is not positive
-    along ``p``, ``p`` does not descend, or the subproblem is unbounded (an
-    indefinite ``A_low``), a Mono-PQN step on the high-fidelity pairs is taken
+    problem from ``x^(-1) = x0``, no high-fidelity product before it), then
+    the first high MVP at its answer ``x^(0)``, which also gives the free
+    secant pair ``(x^(0), A x^(0))`` (the authors' code seeds its memory with
+    it). lcpbench's additions, documented on the parameters: subproblem
+    tolerances that follow the outer residual (``forcing``), and a model check
+    from the high gradient each step already yields, which hands a useless low
+    fidelity's solve to Mono-PQN (``model_tol``; ``info['decisions']``,
+    ``info['model_errors']``, ``info['forcing']``). Robustness beyond the
+    paper: if the model is not positive along ``p``, ``p`` does not descend,
+    or the subproblem is unbounded (an indefinite ``A_low``), a Mono-PQN step on the high-fidelity pairs is taken
     instead (``info['mono_fallbacks']``). The paper's choices: full memory,
     BFGS updates stored unrolled. ``result.state`` carries the high-fidelity
     pairs for the next time step (the model is rebuilt on the new ``A_low``

@@ -23,9 +23,12 @@ linear root problem solved exactly in O(n log n) by sorting its breakpoints
 
 Choices the source leaves open or makes differently (lcpbench's, documented):
 
-* first iteration: the source uses ``t = 1/L`` with ``L = 1`` unless told; here
-  the first step is the Cauchy step ``w'w / w'Aw`` (one counted product, as
-  for ``bb-pgd``) unless ``first_step > 0`` is given;
+* first iteration: the source uses ``t = 1/L`` with ``L = 1`` unless told; here,
+  with a nonzero warm start ``x0``, the first model is built from the free
+  secant pair ``(x0, A x0)`` (``A x0`` is known from the first gradient and
+  ``A 0 = 0``), otherwise the first step is the Cauchy step ``w'w / w'Aw``
+  (one counted product, as for ``bb-pgd``); ``first_step > 0`` forces a plain
+  first step of that length;
 * when ``s'y <= 0`` or ``y = 0`` (no curvature: singular PSD ``A`` or no move)
   the source flags a failure and stops; here the previous ``t`` is kept and
   the rank-1 term dropped for that iteration (``info['skipped_rank1']``);
@@ -42,6 +45,8 @@ import numpy as np
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult
+from lcpbench.toolkit.quasinewton import free_secant_pair
+from lcpbench.toolkit.steps import cauchy_step
 
 __all__ = ["ZeroSR1Params", "zero_sr1", "prox_rank1_nonneg"]
 
@@ -151,7 +156,8 @@ class ZeroSR1Params:
         convex problem).
     first_step : float
         Step of the first (plain projected gradient) iteration; 0 (default):
-        the Cauchy step ``w'w / w'Aw``, one counted product.
+        the model of the free secant pair ``(x0, A x0)`` when ``x0`` is not
+        zero, else the Cauchy step ``w'w / w'Aw``, one counted product.
     """
 
     diag_weight: float = 0.8
@@ -178,20 +184,23 @@ def zero_sr1(ctx: SolverContext, p: ZeroSR1Params) -> SolveResult:
     ctx.info.update(skipped_rank1=0)
     if ctx.report(x, w):
         return ctx.finish(x, w)
-    if p.first_step > 0.0:
-        t = p.first_step
-    else:
-        Aw = ctx.A @ w
-        wAw = float(w @ Aw)
-        t = float(w @ w) / wAw if wAw > 0.0 else 1.0
-    # first iteration: projected gradient step with the scalar t
-    xn = np.maximum(x - t * w, 0.0)
-    wn = ctx.A @ xn + b
+    pair = free_secant_pair(x, w, b) if p.first_step == 0.0 else None
+    if pair is None:
+        if p.first_step > 0.0:
+            t = p.first_step
+        else:
+            t = cauchy_step(w, ctx.A @ w)
+        # first iteration: projected gradient step with the scalar t
+        xn = np.maximum(x - t * w, 0.0)
+        wn = ctx.A @ xn + b
     while True:
-        s, y = xn - x, wn - w
-        x, w = xn, wn
-        if ctx.report(x, w):
-            return ctx.finish(x, w)
+        if pair is not None:
+            (s, y), pair = pair, None
+        else:
+            s, y = xn - x, wn - w
+            x, w = xn, wn
+            if ctx.report(x, w):
+                return ctx.finish(x, w)
         sy, yy = float(s @ y), float(y @ y)
         v = None
         if sy > 0.0 and yy > 0.0:

@@ -22,6 +22,7 @@ from lcpbench.core.defaults import (DEFAULT_SOLVER, EXAMPLE_PROBLEM, EXAMPLE_SCE
                                      SIMULATE_SOLVER)
 from lcpbench.core.registry import get_problem, problems, solvers
 from lcpbench.core.specs import describe_params, make_params, parse_spec
+from lcpbench.core.residuals import STOP_RULES
 from lcpbench.cli.run import add_report_parser, add_run_parser
 from lcpbench.run.store import StoreLocked
 
@@ -50,7 +51,7 @@ def _add_solve_parser(sub) -> None:
     p.add_argument("--instance", type=int, default=None, metavar="I",
                    help="solve only instance I of the family (0-based)")
     p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
-    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--stop", choices=STOP_RULES, default="paper", help="stop rule")
     p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
     p.add_argument("--json", action="store_true", help="one JSON object per solve")
     p.set_defaults(func=cmd_solve)
@@ -71,7 +72,7 @@ def _add_simulate_parser(sub) -> None:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="run-store folder (default reports/simulate-<time>)")
     p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
-    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--stop", choices=STOP_RULES, default="paper", help="stop rule")
     p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
     p.add_argument("--overlap-tol", type=float, default=None,
                    help="largest acceptable overlap after a step, as a fraction of the "

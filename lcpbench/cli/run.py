@@ -8,6 +8,7 @@ from datetime import datetime
 from pathlib import Path
 
 from lcpbench.core.defaults import BASELINE_SOLVER
+from lcpbench.core.residuals import STOP_RULES
 from lcpbench.report.render import render_report
 from lcpbench.run.runner import describe_counts, execute, git_commit, machine_info, plan
 from lcpbench.run.store import RunStore
@@ -30,7 +31,7 @@ def add_run_parser(sub) -> None:
                    help="problem spec, repeatable (values in brackets sweep)")
     p.add_argument("--config", metavar="SWEEP.toml", help="sweep file (see sweeps/)")
     p.add_argument("--tol", type=float, default=None, help="stop-rule tolerance (default 1e-8)")
-    p.add_argument("--stop", choices=("paper", "kkt"), default=None,
+    p.add_argument("--stop", choices=STOP_RULES, default=None,
                    help="stop rule (default paper)")
     p.add_argument("--repeat", type=int, default=None, help="runs per (instance, solver)")
     p.add_argument("--seed", type=int, default=None,

@@ -168,8 +168,9 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         ``lcpbench list`` shows them all.
     tol : float
         Tolerance of the stop rule.
-    stop : {"paper", "kkt"} or StopRule
+    stop : {"paper", "paper-code", "kkt"} or StopRule
         ``paper``: absolute or relative KKT error below tol (eq. kkt-error);
+        ``paper-code``: ``||min(x, Ax+b)||^2 < tol`` (the authors' released code);
         ``kkt``: ``||min(x, Ax+b)|| <= tol (1 + ||b||)``.
     x0 : array_like, optional
         Warm start (e.g. the previous time step's forces).

@@ -16,7 +16,7 @@ import pandas as pd
 from lcpbench.workflows import fidelity
 
 from lcpbench.core.defaults import BASELINE_SOLVER
-from lcpbench.report import plots
+from lcpbench.report import fidelity_map, plots
 
 from lcpbench.report import tables
 from lcpbench.run.store import RunStore, atomic_write
@@ -143,6 +143,11 @@ def render_report(path, baseline: str = BASELINE_SOLVER) -> Path:
         on = res[res["kind"] == "online"]
         parts.append(fig(plots.boxplot_svg(on, "problem", "emvps", "solver",
                                            "E-MVPs per step, per scene", "E-MVPs")))
+
+    fmap_html, fmap = fidelity_map.fidelity_map_section(res)
+    if fmap_html:
+        _write_table(tdir, "fidelity_map", fmap)
+        parts.append(fmap_html)
 
     stored_sets = fidelity.stored_set_specs(res)
     if stored_sets:

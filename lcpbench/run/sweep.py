@@ -33,6 +33,7 @@ from typing import Any, Iterable, Optional
 
 from lcpbench.core.registry import get_problem, get_solver, problems, solvers
 from lcpbench.core.specs import make_params, parse_spec, split_top_level
+from lcpbench.core.residuals import STOP_RULES
 
 __all__ = ["Spec", "RunSpec", "Sweep", "expand", "per_low", "load_config", "default_sweep"]
 
@@ -184,8 +185,8 @@ class Sweep:
             raise ValueError("the sweep has no solver; give --solver NAME (see `lcpbench list`)")
         if not self.problems:
             raise ValueError("the sweep has no problem; give --problem NAME (see `lcpbench list`)")
-        if self.stop not in ("paper", "kkt"):
-            raise ValueError(f"stop must be 'paper' or 'kkt', got {self.stop!r}")
+        if self.stop not in STOP_RULES:
+            raise ValueError(f"stop must be one of {', '.join(STOP_RULES)}, got {self.stop!r}")
         if not self.tol > 0:
             raise ValueError(f"tol must be > 0, got {self.tol}")
         if self.repeat < 1:

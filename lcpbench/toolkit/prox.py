@@ -2,8 +2,8 @@
 
 Computes ``prox^B(y) = argmin_{z >= 0} 1/2 ||z - y||_B^2`` for
 ``B = D + U U' - V V'`` (``D`` positive diagonal, ``B`` positive definite) by
-Proposition prop-nnProx of the method paper (after Becker, Fadili & Ochs 2018,
-Corollary 3.6): with ``C = D + U U'``,
+the method paper's proposition on the weighted non-negative prox (after
+Becker, Fadili & Ochs 2018, Corollary 3.6): with ``C = D + U U'``,
 
     prox^B(y) = (y + C^{-1} V at - D^{-1} U a)_+
 

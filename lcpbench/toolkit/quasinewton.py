@@ -9,7 +9,7 @@ PQN solvers:
 * :class:`DiagonalBFGS` — ``B0 = D`` diagonal (``d * I``): the Mono-PQN model, with
   ``H = B^-1`` applied by the two-loop recursion in O(n r).
 * :class:`OperatorBFGS` — ``B0`` a (low-fidelity) operator: the Bi-PQN model
-  ``B = A_low + U U' - V V'`` (eq. bifi-qnapprox).
+  ``B = A_low + U U' - V V'`` (the paper's bi-fidelity quasi-Newton model).
 
 Pairs with too little curvature (``y's <= curvature_tol * ||s|| ||y||``) are
 skipped, as in the authors' code, so ``B`` stays positive definite whenever
@@ -22,13 +22,28 @@ from typing import Callable, Optional
 
 import numpy as np
 
-__all__ = ["DiagonalBFGS", "OperatorBFGS", "bb2_scale"]
+__all__ = ["DiagonalBFGS", "OperatorBFGS", "bb2_scale", "free_secant_pair"]
 
 
 def bb2_scale(s: np.ndarray, y: np.ndarray) -> float:
     """Barzilai-Borwein (BB2) step ``s'y / y'y`` (inverse curvature estimate)."""
     yy = float(y @ y)
     return float(s @ y) / yy if yy > 0 else 1.0
+
+
+def free_secant_pair(x: np.ndarray, w: np.ndarray, b: np.ndarray
+                     ) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """The secant pair ``(x - 0, A x - A 0)`` a warm start gives for free.
+
+    With ``w = A x + b`` already computed, ``A x = w - b`` and ``A 0 = 0`` needs
+    no product, so ``(s, y) = (x, w - b)`` is a secant pair of ``A`` at no cost
+    (the authors' code seeds its quasi-Newton memory and BB-PGD's first step
+    with it). None when ``x = 0`` or the pair has no positive curvature.
+    """
+    if not np.any(x):
+        return None
+    y = w - b
+    return (x, y) if _accept(x, y, 1e-12) else None
 
 
 def _accept(s: np.ndarray, y: np.ndarray, tol: float) -> bool:
@@ -49,7 +64,7 @@ class DiagonalBFGS:
         (on ``spd-cond`` cond 1e10, n = 50, full memory reached r = 184 and took
         228 s; capped at n it took 2 s and fewer E-MVPs).
     scaling : {"identity", "bb"}
-        ``identity``: ``d = 1`` (``H0 = I`` as in algorithm pqn). ``bb``:
+        ``identity``: ``d = 1`` (``H0 = I`` as in the paper's Mono-PQN algorithm). ``bb``:
         ``d = 1 / (gamma * tau_bb2)`` from the newest pair, as the authors' code
         (``h0 = gamma * s'y / y'y``, clipped to ``[tau_min, tau_max]``); ``d = 1``
         before the first pair.
@@ -155,7 +170,9 @@ class DiagonalBFGS:
 
 
 class OperatorBFGS:
-    """BFGS corrections of an operator: ``B = B0 + U U' - V V'`` (eq. bifi-qnapprox).
+    """BFGS corrections of an operator: ``B = B0 + U U' - V V'``.
+
+    The paper's bi-fidelity quasi-Newton model.
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["exact_step", "feasible_step_bound", "optimal_overrelaxation"]
+__all__ = ["exact_step", "feasible_step_bound", "cauchy_step"]
 
 
 def exact_step(g: np.ndarray, p: np.ndarray, Ap: np.ndarray) -> float:
@@ -37,11 +37,12 @@ def feasible_step_bound(x: np.ndarray, p: np.ndarray) -> float:
     return float(np.min(-x[neg] / p[neg]))
 
 
-def optimal_overrelaxation(x: np.ndarray, g: np.ndarray, p: np.ndarray, Ap: np.ndarray) -> float:
-    """The paper's optimal over-relaxation parameter (algorithm stepSize).
+def cauchy_step(w: np.ndarray, Aw: np.ndarray) -> float:
+    """The Cauchy step ``w'w / w'Aw``: the exact minimiser along ``-w`` (1.0 if undefined).
 
-    ``eta* = min(eta', eta_hat)`` with ``eta' = -p'(Ax+b) / p'Ap`` the
-    unconstrained optimal step and ``eta_hat = min_{p_l < 0} -x_l / p_l`` the
-    first constraint the step would violate. Uses only the cached ``A p``.
+    First step of the projected-gradient baselines when no secant pair is known
+    (the product ``A w`` is the caller's, counted).
     """
-    return min(exact_step(g, p, Ap), feasible_step_bound(x, p))
+    wAw = float(w @ Aw)
+    tau = float(w @ w) / wAw if wAw > 0.0 else 1.0
+    return tau if np.isfinite(tau) and tau > 0.0 else 1.0

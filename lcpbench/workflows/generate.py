@@ -55,6 +55,7 @@ from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.sets import SetWriter, StoredSetError, instance_ids, read_instance
+from lcpbench.core.residuals import STOP_RULES
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
            "add_generate_parser", "cmd_generate", "GenerateSummary"]
@@ -430,7 +431,7 @@ def add_generate_parser(sub) -> None:
     p.add_argument("--title", default=None, help="one-line title (root attr)")
     p.add_argument("--description", default=None, help="description (root attr)")
     p.add_argument("--tol", type=float, default=1e-8, help="simulation solves' tolerance")
-    p.add_argument("--stop", choices=("paper", "kkt"), default="paper", help="stop rule")
+    p.add_argument("--stop", choices=STOP_RULES, default="paper", help="stop rule")
     p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per solve")
     p.add_argument("--compression", choices=("gzip", "lzf"), default=None,
                    help="compress the matrices")

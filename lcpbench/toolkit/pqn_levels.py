@@ -11,9 +11,9 @@ The gradient is tracked by the recurrence ``G <- G + eta Q p`` so each
 iteration costs exactly one product with ``Q`` (section "Mono-PQN Step Size
 Selection", remark "Computing eta* requires no extra MVPs").
 
-* :func:`mono_level` is algorithm pqn (Mono-PQN) on that quadratic.
-* :func:`bi_level` is algorithm bpqn (Bi-PQN): its subproblem (eq.
-  pqnSubproblem) is solved by the next level down, which is :func:`mono_level`
+* :func:`mono_level` is the paper's Mono-PQN algorithm on that quadratic.
+* :func:`bi_level` is the paper's Bi-PQN algorithm: its PQN subproblem is
+  solved by the next level down, which is :func:`mono_level`
   for Bi-PQN and another :func:`bi_level` for the multi-fidelity chain.
 
 Levels exchange secant pairs as :class:`Pairs` (``S``, ``Y = Q S`` and, when
@@ -28,13 +28,14 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from lcpbench.core.residuals import kkt_abs
 from lcpbench.toolkit.prox import weighted_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
-from lcpbench.core.residuals import kkt_abs
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
-__all__ = ["Pairs", "LevelOptions", "LevelOutcome", "Counters", "mono_level", "bi_level",
-           "pqn_direction"]
+__all__ = ["Pairs", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
+           "bi_level", "low_start", "pqn_direction", "optimal_step", "model_check",
+           "forcing_term"]
 
 
 @dataclass
@@ -65,21 +66,61 @@ class Pairs:
 
 
 @dataclass(frozen=True)
-class LevelOptions:
-    """Choices shared by every level (documented on the solvers' parameters)."""
+class MonoOptions:
+    """Choices of a Mono-PQN level (documented on the solvers' parameters, ``mono-pqn``)."""
 
     memory: int = 0
     scaling: str = "bb"
     gamma: float = 0.8
     prox_tol: float = 1e-12
     prox_max_iter: int = 100
-    recompute_every: int = 0
-    inner_rtol: float = 0.01
+    recompute_every: int = 50
+    free_pair: bool = True
+
+    def __post_init__(self) -> None:
+        if self.memory < 0:
+            raise ValueError("memory must be >= 0 (0 keeps every pair)")
+        if self.scaling not in ("bb", "identity"):
+            raise ValueError(f"scaling must be 'bb' or 'identity', got {self.scaling!r}")
+        if not 0 < self.gamma <= 1:
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
+        if not self.prox_tol > 0 or self.prox_max_iter < 1:
+            raise ValueError("prox_tol must be > 0 and prox_max_iter >= 1")
+        if self.recompute_every < 0:
+            raise ValueError("recompute_every must be >= 0 (0 never recomputes)")
+
+
+@dataclass(frozen=True)
+class BiOptions(MonoOptions):
+    """Choices of a Bi-PQN level (documented on the solvers' parameters, ``bi-pqn``)."""
+
+    start: str = "low"
+    inner_rtol: float = 0.1
+    forcing: float = 0.5
     inner_max_iter: int = 20
     inner_memory: int = 0
     warm_rtol: float = 0.1
     warm_max_iter: int = 50
+    model_tol: float = 0.5
     max_fallbacks: int = 3
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.start not in ("low", "high"):
+            raise ValueError(f"start must be 'low' (the paper's) or 'high', got {self.start!r}")
+        if self.max_fallbacks < 0:
+            raise ValueError("max_fallbacks must be >= 0 (0: never abandon the low model)")
+        if not 0 < self.inner_rtol < 1 or not 0 < self.warm_rtol < 1:
+            raise ValueError("inner_rtol and warm_rtol must be in (0, 1)")
+        if not 0 < self.forcing <= 1:
+            raise ValueError(f"forcing must be in (0, 1], got {self.forcing}")
+        if not self.model_tol > 0:
+            raise ValueError(f"model_tol must be > 0 (inf: never judge the model), got "
+                             f"{self.model_tol}")
+        if self.inner_max_iter < 1 or self.warm_max_iter < 1:
+            raise ValueError("inner_max_iter and warm_max_iter must be >= 1")
+        if self.inner_memory < 0:
+            raise ValueError("inner_memory must be >= 0 (0 keeps every pair)")
 
 
 @dataclass
@@ -95,9 +136,12 @@ class Counters:
     inner_iterations: int = 0
     skipped_pairs: int = 0
     abandoned_low: bool = False
+    model_errors: list = field(default_factory=list)
+    forcing: list = field(default_factory=list)
+    decisions: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__)
+        return {k: (list(v) if isinstance(v, list) else v) for k, v in self.__dict__.items()}
 
 
 @dataclass
@@ -114,9 +158,9 @@ class LevelOutcome:
     pairs: Pairs
 
 
-def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: LevelOptions,
+def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoOptions,
                   counters: Counters) -> Optional[np.ndarray]:
-    """The Mono-PQN direction ``p = prox^B(z - H G) - z`` (eq. prox-pqn).
+    """The Mono-PQN direction ``p = prox^B(z - H G) - z`` (the paper's PQN step).
 
     Falls back to the projected-gradient direction with step ``1/d`` when the
     prox step does not descend (an inexact prox); returns None when no descent
@@ -136,7 +180,7 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: Level
     return p if float(G @ p) < 0.0 else None
 
 
-def _step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
+def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
           ) -> tuple[Optional[np.ndarray], Optional[np.ndarray], float]:
     """Algorithm stepSize: ``eta* = min(eta', eta_hat)`` and the moved point.
 
@@ -161,7 +205,7 @@ def _step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
 
 def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.ndarray,
                stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
-               opts: LevelOptions, counters: Counters, *, seed: Optional[Pairs] = None,
+               opts: BiOptions, counters: Counters, *, seed: Optional[Pairs] = None,
                memory: Optional[int] = None,
                exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
                checked: bool = False) -> LevelOutcome:
@@ -207,7 +251,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
             reason = "stationary"
             break
         Qp = apply(p)
-        z_new, G_new, eta = _step(z, G, p, Qp)
+        z_new, G_new, eta = optimal_step(z, G, p, Qp)
         if z_new is None:
             reason = "unbounded"
             break
@@ -232,13 +276,15 @@ def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
 
 def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarray,
              G: np.ndarray, stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
-             opts: LevelOptions, counters: Counters, *, state: Optional[dict] = None,
+             opts: BiOptions, counters: Counters, *, state: Optional[dict] = None,
              warm_start: bool = True,
-             exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None
+             exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+             floor: float = 0.0, model_error: Optional[float] = None,
+             prev_residual: Optional[float] = None, adaptive: bool = True
              ) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
-    Each outer iteration solves eq. pqnSubproblem,
+    Each outer iteration solves the paper's PQN subproblem,
     ``min_{z>=0} 1/2 (z - x)' B (z - x) + g'(z - x)`` with ``B = lows[0] + U U' - V V'``,
     whose gradient ``B (z - x) + g`` is free at ``z = x``; every inner
     iteration costs one product with ``lows[0]`` plus ``O(n r)``. The inner
@@ -248,18 +294,31 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     extra low-fidelity product. The carried pairs are corrected with
     ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem Secant Conditions").
 
+    Inner accuracy: the subproblem is solved until its residual is below
+    ``max(eta r, floor)``, ``r`` the outer residual at ``x`` and ``eta`` the
+    forcing term of :func:`forcing_term` (``inner_rtol`` while nothing is
+    measured yet, or ``warm_rtol`` with ``warm_start``).
+
+    Model check (no extra high-fidelity product): after each step the new
+    high-fidelity gradient ``g + eta A p`` is known, and the model predicted
+    ``g + eta B p``; ``||(A - B) p|| / ||A p||`` (:func:`model_check`, listed
+    in ``counters.model_errors``) feeds the forcing term, and once it exceeds
+    ``model_tol`` the model is judged useless: the level finishes as Mono-PQN
+    on the high-fidelity pairs gathered so far, spending no more low
+    products (``counters.decisions`` ends with ``mono:model``).
+
     Fallback: when the subproblem's answer ``p`` does not descend
     (``g'p >= 0``), the model is not positive along it (``p'Bp <= 0``), or the
     inner model is unbounded (an indefinite ``lows[0]``), a Mono-PQN step with
     the diagonal BFGS model of the high-fidelity pairs is taken instead
-    (counted in ``mono_fallbacks``); its ``lows[0] p`` costs one extra
-    low-fidelity product so the model can still be updated.
+    (counted in ``mono_fallbacks``, decision ``fallback``); its ``lows[0] p``
+    costs one extra low-fidelity product so the model can still be updated.
+    After ``max_fallbacks`` in a row the level finishes as Mono-PQN
+    (``mono:subproblem``).
 
-    Warm start: the first outer iteration is the paper's low-fidelity
-    initialisation (Mono-PQN on the low-fidelity problem from ``x^(-1)``),
-    solved to ``warm_rtol`` instead of ``inner_rtol``; the point it returns is
-    then moved by the optimal over-relaxation, which costs no product beyond
-    the high-fidelity MVP the paper spends on ``A x^(0)``.
+    Warm start (``warm_start=True``, the old start kept as ``start=high``):
+    the first subproblem is solved to ``warm_rtol``. The paper's start is
+    :func:`low_start`, whose answer comes in through ``state``.
 
     Returns
     -------
@@ -283,16 +342,18 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     first = warm_start
     it = streak = 0
     reason = "max_iter"
+    rho = model_error
+    r_prev = prev_residual
     while True:
         if stop(z, G):
             reason = "stop"
             break
         if it >= max_iter:
             break
-        if opts.max_fallbacks and streak >= opts.max_fallbacks:
-            # the low-fidelity model failed max_fallbacks times in a row: finish with
-            # Mono-PQN on the high-fidelity pairs gathered so far (no more low MVPs)
+        poor = rho is not None and rho > opts.model_tol
+        if poor or (opts.max_fallbacks and streak >= opts.max_fallbacks):
             counters.abandoned_low = True
+            counters.decisions.append("mono:model" if poor else "mono:subproblem")
             out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
                              seed=Pairs(list(diag.S), list(diag.Y)),
                              exact_gradient=exact_gradient, checked=True)
@@ -300,10 +361,16 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, hi_pairs),
                     {"pairs": hi_pairs, "inner": inner_state, "model": model})
         r0 = kkt_abs(z, G)
-        rtol, cap = (opts.warm_rtol, opts.warm_max_iter) if first else \
-            (opts.inner_rtol, opts.inner_max_iter)
+        if first:
+            eta_f, cap = opts.warm_rtol, opts.warm_max_iter
+        else:
+            rate = min(x for x in (rho, r0 / r_prev if r_prev else None, np.inf)
+                       if x is not None)
+            eta_f, cap = forcing_term(rate if adaptive else None, opts), opts.inner_max_iter
+            counters.forcing.append(eta_f)
         first = False
-        tol_in = rtol * r0
+        r_prev = r0
+        tol_in = max(eta_f * r0, floor)
 
         def B(v, _m=model):
             return base(v) + _m.correction(v)
@@ -312,8 +379,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             return kkt_abs(zz, GG) <= _t
 
         with np.errstate(over="ignore", invalid="ignore"):
-            inner, inner_state_new = _solve_sub(B, lows, z, G, inner_stop, cap, opts, counters,
-                                                inner_state)
+            inner, inner_state_new = _solve_sub(B, lows, z, G, inner_stop, cap, opts,
+                                                counters, inner_state)
         counters.inner_iterations += inner.iterations
         p = inner.z - z
         Bp = inner.G - G
@@ -322,13 +389,16 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         streak = 0 if ok else streak + 1
         if not ok:
             counters.mono_fallbacks += 1
+            counters.decisions.append("fallback")
             p = pqn_direction(diag, z, G, opts, counters)
             if p is None:
                 reason = "stationary"
                 break
             Bp = None
+        else:
+            counters.decisions.append("model")
         Qp = apply(p)
-        z_new, G_new, eta = _step(z, G, p, Qp)
+        z_new, G_new, eta = optimal_step(z, G, p, Qp)
         if z_new is None:
             reason = "unbounded"
             break
@@ -336,6 +406,9 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         s, y = eta * p, eta * Qp
         b0p = base(p) if Bp is None else Bp - model.correction(p)
         Bs = eta * (b0p + model.correction(p))
+        # the model check: the new high gradient is known; how well did B predict it?
+        rho = model_check(Qp, b0p + model.correction(p))
+        counters.model_errors.append(rho)
         old_model = model
         model = _copy_model(model)
         uv = model.update(s, y, Bs)
@@ -357,9 +430,86 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             {"pairs": hi_pairs, "inner": inner_state, "model": model})
 
 
+def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
+              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float):
+    """The paper's initialisation (Bi-PQN algorithm, line 1): the low-fidelity LCP first.
+
+    ``min_{z>=0} 1/2 z' L z + b'z`` with ``L = lows[0]`` is solved from ``z``
+    (Mono-PQN, or Bi-PQN on ``lows[1:]`` for a chain) to ``warm_rtol`` times
+    its residual at ``z``, with no high-fidelity product; its gradient at
+    ``z`` costs one low product (none at ``z = 0``). Then the first
+    high-fidelity MVP gives ``A z1`` at its answer ``z1``, which makes
+    ``(z1 - 0, A z1 - A 0)`` a free secant pair (``L z1`` is known from the
+    low solve's gradient) and measures the model's error along ``z1``
+    (:func:`model_check`) before any outer step.
+
+    Returns
+    -------
+    z1, G1 : ndarray
+        The start of the outer iteration and ``A z1 + b``.
+    state : dict or None
+        ``bi_level``'s state: the free pair and the low solve's pairs (None
+        when the low solve broke down; then ``z1`` is the given ``z``).
+    model_error : float or None
+        ``||(A - L) z1|| / ||A z1||``.
+    residual : float or None
+        The low problem's residual at ``z``, the stand-in for the outer
+        residual before the first high product (for the forcing term).
+    """
+    L = lows[0]
+    Gl = L(z) + b
+    r_low = kkt_abs(z, Gl)
+    tol = max(opts.warm_rtol * r_low, floor)
+
+    def stop(zz, GG):
+        return kkt_abs(zz, GG) <= tol
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        out, inner_state = _solve_sub(L, lows, z, Gl, stop, opts.warm_max_iter, opts, counters,
+                                      None)
+    counters.inner_iterations += out.iterations
+    if out.reason == "unbounded" or not (np.all(np.isfinite(out.z))
+                                         and np.all(np.isfinite(out.G))):
+        counters.decisions.append("start:x0")
+        return z, exact_gradient(z), None, None, None
+    z1 = out.z
+    G1 = exact_gradient(z1)
+    Az, Lz = G1 - b, out.G - b
+    rho = model_check(Az, Lz)
+    counters.model_errors.append(rho)
+    counters.decisions.append("start:low")
+    state = {"pairs": Pairs([z1], [Az], [Lz]) if np.any(z1) else Pairs(),
+             "inner": inner_state, "model": OperatorBFGS(L, z.shape[0])}
+    return z1, G1, state, rho, r_low
+
+
+def model_check(Qp: np.ndarray, Bp: np.ndarray) -> float:
+    """Relative error ``||(Q - B) p|| / ||Q p||`` of the model along the step just taken."""
+    den = float(np.linalg.norm(Qp))
+    return float(np.linalg.norm(Qp - Bp)) / den if den > 0 else 0.0
+
+
+def forcing_term(rate: Optional[float], opts: BiOptions) -> float:
+    """Relative tolerance of the next subproblem: ``min(inner_rtol, forcing * rate)``.
+
+    ``rate`` is the expected contraction of the outer residual: the smaller of
+    the model's measured relative error (:func:`model_check`) and the last
+    observed ratio of outer residuals. An inexact Newton method needs its
+    inner residual only below a fraction of the outer residual it expects next
+    (Eisenstat & Walker, SIAM J. Sci. Comput. 17 (1996): the forcing term
+    follows how well the local model predicted the last step, their choice 1,
+    or the observed rate, their choice 2); solving further buys no outer
+    progress, since the model's own error then dominates the next residual,
+    and solving less throws away the accuracy an accurate model offers.
+    """
+    if rate is None or not np.isfinite(rate):
+        return opts.inner_rtol
+    return float(min(opts.inner_rtol, opts.forcing * rate))
+
+
 def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Callable,
-               cap: int, opts: LevelOptions, counters: Counters, inner_state):
-    """The subproblem of eq. pqnSubproblem by the next level down (Mono-PQN or Bi-PQN)."""
+               cap: int, opts: BiOptions, counters: Counters, inner_state):
+    """The paper's PQN subproblem, solved by the next level down (Mono-PQN or Bi-PQN)."""
     if len(lows) == 1:
         inner = mono_level(B, z, G, stop, cap, opts, counters,
                            seed=inner_state if isinstance(inner_state, Pairs) else None,
@@ -367,7 +517,7 @@ def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Call
         return inner, inner.pairs
     return bi_level(B, lows[1:], z, G, stop, cap, opts, counters,
                     state=inner_state if isinstance(inner_state, dict) else None,
-                    warm_start=False)
+                    warm_start=False, adaptive=False)
 
 
 def _copy_model(model: OperatorBFGS) -> OperatorBFGS:
@@ -381,7 +531,7 @@ def _delta(old: OperatorBFGS, new: OperatorBFGS) -> Callable[[np.ndarray], np.nd
     return lambda v: new.correction(v) - old.correction(v)
 
 
-def _carry(inner_state, delta: Callable, opts: LevelOptions):
+def _carry(inner_state, delta: Callable, opts: BiOptions):
     """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change."""
     if isinstance(inner_state, Pairs):
         out = inner_state.corrected(delta)
