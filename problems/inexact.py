@@ -21,10 +21,10 @@ from scipy.sparse.linalg import LinearOperator, cg
 
 from lcpbench import LCP, Operator, register_problem
 
-__all__ = ["inexact_inverse", "inexact_lcp"]
+__all__ = ["inexact_inverse", "inexact_lcp", "stiffness"]
 
 
-def _stiffness(rng: np.random.Generator, n: int, shift: float) -> sp.csr_matrix:
+def stiffness(rng: np.random.Generator, n: int, shift: float) -> sp.csr_matrix:
     """A weighted 1-D Laplacian plus ``shift`` times the identity (SPD, sparse)."""
     c = rng.uniform(0.5, 2.0, n + 1)                     # conductances of the n + 1 links
     main = c[:-1] + c[1:] + shift
@@ -60,7 +60,7 @@ def inexact_lcp(rng: np.random.Generator, n: int, rtol: float, *, shift: float =
     and ``shift`` (the smallest eigenvalue of ``K`` is above ``shift``, so
     ``||A||_2 < 1 / shift``).
     """
-    K = _stiffness(rng, n, shift)
+    K = stiffness(rng, n, shift)
     A = Operator(inexact_inverse(K, rtol), rtol=rtol)
     b = rng.standard_normal(n)
     return LCP(A, b, name=name, meta={"family": "inexact", "n": int(n), "rtol": float(rtol),
