@@ -57,12 +57,13 @@ class ConfirmedReport:
         # exact 1.2e-7).
         self.norm_A = 0.0
         self.rtol = float(ctx.A.rtol or 0.0)
+        self.path = 0.0
         self._prev: Optional[tuple[np.ndarray, np.ndarray]] = None
         ctx.info["confirmations"] = 0
 
     def exact(self, z: np.ndarray) -> np.ndarray:
         """``A z + b`` by a counted product; resets the drift bound."""
-        self.drift, self.prev_norm = 0.0, None
+        self.drift, self.prev_norm, self.path = 0.0, None, 0.0
         return self.ctx.A @ z + self.ctx.b
 
     def __call__(self, z: np.ndarray, G: np.ndarray, *, exact: bool = False,
@@ -77,7 +78,7 @@ class ConfirmedReport:
         """
         norm = float(np.linalg.norm(G))
         if exact:
-            self.drift = 0.0
+            self.drift, self.path = 0.0, 0.0
         elif self.prev_norm is not None:
             self.drift += self.scale * (self.prev_norm + norm)
             if self.rtol and self._prev is not None:
@@ -89,8 +90,12 @@ class ConfirmedReport:
             dz = float(np.linalg.norm(z - self._prev[0]))
             if dz > 0.0:
                 self.norm_A = max(self.norm_A, float(np.linalg.norm(G - self._prev[1])) / dz)
+            self.path += dz
         self._prev = (np.array(z, dtype=float), np.array(G, dtype=float))
-        floor = self.scale * self.norm_A * float(np.linalg.norm(z))
+        # every product A p of a step p rounds at about eps sqrt(n) ||A|| ||p||: the steps
+        # since the last exact product (the path length, which an excursion far out and back
+        # makes large even when z is small again) bound what the recurrence lost
+        floor = self.scale * self.norm_A * (float(np.linalg.norm(z)) + self.path)
         thr = self.ctx.threshold
         claim = float(np.linalg.norm(np.minimum(z, G)))
         confirmed = False
@@ -105,7 +110,7 @@ class ConfirmedReport:
         if np.all(np.isfinite(G)):
             norm_A = max(self.norm_A, self.ctx.norm_A)
             bound = float(np.linalg.norm(np.minimum(z, G))) + self.drift \
-                + self.scale * norm_A * float(np.linalg.norm(z))
+                + self.scale * norm_A * (float(np.linalg.norm(z)) + self.path)
             if bound <= thr and not always:
                 self.ctx.certify(z, bound)
         if self.ctx.report(z, G):
