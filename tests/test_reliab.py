@@ -289,3 +289,23 @@ def test_prox_fallback_steps_are_capped(monkeypatch):
                                  np.zeros((n, 0)), max_iter=0)
     assert info.fallback and seen == [prox.FALLBACK_ITERS] and prox.FALLBACK_ITERS <= 500
     assert np.all(z >= 0)
+
+
+def test_no_refuted_convergence_on_rank1_tiny_lcps():
+    """Rank-1 LCPs with n = 2..4, many without a solution (the iterates run far out along the
+    null direction and back): a converged claim must survive the verification."""
+    from lcpbench.problems.random import with_perturbed_lows
+
+    specs = ("mono-pqn", "bi-pqn:low=low", "multi-pqn:lows=[low,lower]")
+    claims = 0
+    for i in range(150):
+        rng = np.random.default_rng([0, i, 3])
+        n = int(rng.integers(2, 5))
+        u = rng.standard_normal(n) * 10 ** rng.uniform(-2, 2)
+        lcp = with_perturbed_lows(LCP(np.outer(u, u), rng.standard_normal(n)), seed=i)
+        for spec in specs:
+            res = lcpbench.solve(lcp, solver=spec, max_emvps=1000)
+            if res.status == Status.converged:
+                claims += 1
+                assert res.verified_kkt_abs <= res.threshold, (i, res.summary())
+    assert claims > 100                     # the feasible half is still solved
