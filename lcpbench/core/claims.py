@@ -59,14 +59,16 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
         return res
     Ax = ctx.A.last_product(x)
     if Ax is None:
+        before = ctx.A.count
         try:
-            Ax = ctx.A @ x
+            Ax = ctx.A @ x                  # free for x = 0 (a zero vector is never counted)
         except BudgetExhausted as exc:
             res.status = Status.timeout if exc.kind == "time" else Status.budget
             res.message = (f"{exc} before the convergence claim at the returned x could be "
                            "confirmed by a fresh product")
             return res
-        ctx.info["confirmation_mvps"] = ctx.info.get("confirmation_mvps", 0) + 1
+        if ctx.A.count > before:
+            ctx.info["confirmation_mvps"] = ctx.info.get("confirmation_mvps", 0) + 1
     fresh = kkt_abs(x, Ax + ctx.b)
     ctx.info["confirmed_kkt_abs"] = fresh
     if fresh <= ctx.threshold:
@@ -122,7 +124,7 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     d, bd = best
     ctx.detach()                               # the solve is over: this product is evidence
     try:
-        Ad = ctx.A @ d
+        Ad = ctx.A @ d                         # d != 0: one counted product
     except Exception as exc:                   # an operator failure here is not the solver's
         ctx.info["infeasibility_check_error"] = f"{type(exc).__name__}: {exc}"
         return None
