@@ -104,8 +104,8 @@ def _close_held_locks_in_child() -> None:
     for fd in RunLock._held:
         try:
             os.close(fd)
-        except OSError:
-            pass
+        except OSError:         # already closed in this child: nothing is held, nothing to do
+            continue
     RunLock._held.clear()
 
 
