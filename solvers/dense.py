@@ -211,7 +211,7 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
         else:
             row = _lex_min_ratio(rhs, Binv, d, col, p.pivot_tol)
             if row is None:
-                status, message = Status.failed, (
+                status, message = Status.infeasible, (
                     f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
                     "the LCP is infeasible)")
                 break
@@ -240,13 +240,16 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
                 Binv = np.linalg.inv(np.column_stack([column(int(k)) for k in basis]))
                 rhs = np.maximum(Binv @ bs, 0.0)   # basic variables are >= 0
             except np.linalg.LinAlgError:
-                pass
+                # a numerically singular basis: keep the product-form inverse (it carries on
+                # exactly where the refactorisation would have been) and record it
+                ctx.info["singular_refactors"] = ctx.info.get("singular_refactors", 0) + 1
     ctx.info["pivots"] = pivots
     # Recover z from the final basis by a direct solve (accurate, no drift).
     Bmat = np.column_stack([column(int(k)) for k in basis])
     try:
         sol = np.linalg.solve(Bmat, bs)
     except np.linalg.LinAlgError:
+        ctx.info["final_basis"] = "singular: least-squares solve"
         sol = np.linalg.lstsq(Bmat, bs, rcond=None)[0]
     if not np.all(np.isfinite(sol)):
         sol = rhs

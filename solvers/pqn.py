@@ -174,7 +174,7 @@ def _finish(ctx: SolverContext, out, counters: Counters, state: dict) -> SolveRe
     ctx.info.update(counters.as_dict())
     state["n"] = ctx.n
     if out.reason == "unbounded":
-        return ctx.finish(out.z, out.G, Status.failed,
+        return ctx.finish(out.z, out.G, Status.infeasible,
                           "the quadratic is unbounded below along the search direction: the LCP "
                           "has no solution (A not PSD, or -b outside the cone)", state=state)
     if out.reason == "stationary":

@@ -24,7 +24,9 @@ class MisbehaveParams:
     ----------
     mode : str
         sleep (ignores every budget), raise, nan, die (exit code 3), kill (SIGKILL to
-        itself), segv (a real segmentation fault), slow (solves after a short sleep).
+        itself), segv (a real segmentation fault), slow (solves after a short sleep),
+        wait (solves once the file named by ``LCPBENCH_TEST_RELEASE`` exists, for tests
+        that must act while runs are certainly in flight; gives up after 120 s).
     seconds : float
         Sleep of ``slow``.
     """
@@ -47,8 +49,13 @@ def misbehave(ctx, p):
     if p.mode == "segv":
         faulthandler.disable()          # pytest's handler would print a traceback dump
         ctypes.string_at(0)
-    if p.mode == "slow":
-        time.sleep(p.seconds)
+    if p.mode == "wait":
+        release = os.environ["LCPBENCH_TEST_RELEASE"]
+        t0 = time.monotonic()
+        while not os.path.exists(release) and time.monotonic() - t0 < 120:
+            time.sleep(0.02)
+    if p.mode in ("slow", "wait"):
+        time.sleep(p.seconds if p.mode == "slow" else 0.0)
         x = np.zeros(ctx.n)
         w = ctx.A @ x + ctx.b
         ctx.report(x, w)

@@ -25,7 +25,7 @@ def test_pgs_converges_spd(omega, seed):
 def test_pgs_budget_and_warm_start():
     A, b = planted(30, seed=3, cond=1e3)
     res = lcpbench.solve(A, b, solver="pgs", stop="kkt", tol=1e-12, max_emvps=3)
-    assert res.status is Status.max_iter and res.mvps <= 3
+    assert res.status is Status.budget and res.mvps <= 3
     ref = lcpbench.reference(LCP(A, b))
     res = lcpbench.solve(A, b, solver="pgs", stop="kkt", tol=1e-7, x0=ref.x)
     assert res.solved and res.mvps == 1 and res.info["sweeps"] == 0
@@ -75,12 +75,12 @@ def test_lemke_empty_problem():
     assert res.status is Status.converged and res.x.shape == (0,)
 
 
-def test_lemke_ray_termination_reported_as_failure():
+def test_lemke_ray_termination_reported_as_infeasible():
     # w_2 = 0 x + (-1) can never be >= 0: the LCP has no solution.
     A = np.diag([1.0, 0.0])
     b = np.array([1.0, -1.0])
     res = lcpbench.solve(A, b, solver="lemke")
-    assert res.status is Status.failed and "ray" in res.message
+    assert res.status is Status.infeasible and "ray" in res.message
     assert not res.solved
 
 

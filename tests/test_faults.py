@@ -23,7 +23,7 @@ from lcpbench.run.store import RunStore, atomic_write
 from lcpbench.run.sweep import Sweep
 
 PLUGIN = str(Path(misbehave_plugin.__file__).resolve())
-TIMING = ["time_s", "mvp_time_s", "started", "finished", "info", "message"]
+TIMING = ["time_s", "mvp_time_s", "started", "finished", "info", "message", "row_crc"]
 
 
 def _rows(path: Path) -> pd.DataFrame:
@@ -43,46 +43,52 @@ def test_second_runner_is_refused_and_nothing_is_written(tmp_path, capsys):
     assert len(_rows(out)) == 1
 
 
+def _wait_for(predicate, seconds=120.0):
+    t0 = time.monotonic()
+    while not predicate():
+        assert time.monotonic() - t0 < seconds, "the runner did not get there"
+        time.sleep(0.02)
+
+
 def test_second_runner_process_is_refused_while_first_runs(tmp_path):
     out = tmp_path / "store"
-    env = {**os.environ, "LCPBENCH_PLUGINS": PLUGIN}
-    cmd = [sys.executable, "-m", "lcpbench.cli", "run", "--solver",
-           "test-misbehave:mode=slow,seconds=0.3", "--problem", "fathi:sizes=[4,6,8,10]",
-           "--repeat", "5", "--out", str(out), "--quiet", "--no-report"]
+    release = tmp_path / "release"
+    env = {**os.environ, "LCPBENCH_PLUGINS": PLUGIN, "LCPBENCH_TEST_RELEASE": str(release)}
+    cmd = [sys.executable, "-m", "lcpbench.cli", "run", "--solver", "test-misbehave:mode=wait",
+           "--problem", "fathi:sizes=[4,6,8,10]", "--out", str(out), "--quiet", "--no-report"]
     first = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE)
     try:
-        for _ in range(200):
-            if (out / "meta.json").exists():
-                break
-            time.sleep(0.05)
+        _wait_for(lambda: (out / "meta.json").exists())   # holds the lock, runs blocked
         second = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
         assert second.returncode == 2
         assert "being written by another lcpbench run" in second.stderr
     finally:
+        release.touch()
         first.wait(timeout=120)
     assert first.returncode == 0
     rows = _rows(out)
-    assert len(rows) == 20 and rows["run_id"].is_unique
+    assert len(rows) == 4 and rows["run_id"].is_unique
 
 
 def test_kill_9_mid_sweep_then_resume_gives_every_row_exactly_once(tmp_path):
     out = tmp_path / "store"
-    env = {**os.environ, "LCPBENCH_PLUGINS": PLUGIN}
-    cmd = [sys.executable, "-m", "lcpbench.cli", "run", "--solver",
-           "test-misbehave:mode=slow,seconds=[0.05,0.1]", "--solver", "bb-pgd",
+    release = tmp_path / "release"
+    env = {**os.environ, "LCPBENCH_PLUGINS": PLUGIN, "LCPBENCH_TEST_RELEASE": str(release)}
+    # bb-pgd's 12 runs come first and finish; the waiting runs after them cannot finish
+    # before the kill, so the kill always lands mid-sweep
+    cmd = [sys.executable, "-m", "lcpbench.cli", "run", "--solver", "bb-pgd", "--solver",
+           "test-misbehave:mode=[wait,slow],seconds=0.05",
            "--problem", "planted:count=4", "--repeat", "3", "--jobs", "2",
            "--out", str(out), "--quiet", "--no-report"]
-    planned = 2 * 4 * 3 + 4 * 3
+    planned = 4 * 3 + 2 * 4 * 3
     proc = subprocess.Popen(cmd, env=env, start_new_session=True)
     results = out / "results.csv"
-    for _ in range(600):
-        if results.exists() and results.read_text().count("\n") > 6:
-            break
-        time.sleep(0.02)
+    _wait_for(lambda: results.exists() and results.read_text().count("\n") > 6)
     os.killpg(proc.pid, signal.SIGKILL)          # the runner and its forked children
     proc.wait()
     partial = results.read_text().count("\n") - 1
     assert 0 < partial < planned
+    release.touch()
     subprocess.run(cmd, env=env, check=True, timeout=300)
     rows = _rows(out)
     assert len(rows) == planned and rows["run_id"].is_unique

@@ -86,7 +86,7 @@ def test_reported_w_belongs_to_reported_x():
 def test_budget_honoured():
     A, b = planted(40, seed=2, cond=1e3)
     res = lcpbench.solve(A, b, solver="l-bfgs-b", stop="kkt", tol=1e-12, max_emvps=5)
-    assert res.status is Status.max_iter
+    assert res.status is Status.budget
     assert res.mvps <= 5
 
 

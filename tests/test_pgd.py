@@ -174,7 +174,7 @@ def test_singular_psd_keeps_step_when_curvature_vanishes():
     for lcp in _family("singular-psd", count=2):
         for spec in ("bb-pgd", "zero-sr1", "a-pgd"):
             res = lcpbench.solve(lcp, solver=spec)
-            assert res.status.value in ("converged", "stagnated", "max_iter")
+            assert res.status.value in ("converged", "stagnated", "max_iter", "budget")
             assert np.all(np.isfinite(res.x))
 
 

@@ -159,8 +159,8 @@ def test_mixed_declared_and_measured_costs_are_refused():
         LCP(Operator(A), np.ones(3), low={"low": Operator(A, cost=0.1)})
 
 
-def test_unbounded_problem_is_reported_as_failed():
+def test_unbounded_problem_is_reported_as_infeasible():
     # A PSD singular with b pushing along the null space: no solution exists
     A = np.array([[1.0, 0.0], [0.0, 0.0]])
     res = lcpbench.solve(A, np.array([0.0, -1.0]), solver="mono-pqn")
-    assert res.status is Status.failed and not res.solved
+    assert res.status is Status.infeasible and not res.solved

@@ -7,7 +7,9 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 
+from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
+from lcpbench.core.deadline import Deadline
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted
 from lcpbench.core.registry import get_solver
@@ -64,14 +66,21 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     Returns
     -------
     SolveResult
-        With the solver's claim, the operator-counted MVPs and E-MVPs, and the
-        framework's verified residuals (one uncounted product).
+        With the solver's claim (a ``converged`` confirmed by a fresh counted
+        product, see :mod:`lcpbench.core.claims`), the operator-counted MVPs and
+        E-MVPs, and the framework's verified residuals (one uncounted product).
+        An exception from the solver or from a user operator gives a ``failed``
+        result naming it; it never escapes.
     """
     info, p = _resolve_solver(solver, params or {})
+    if isinstance(tol, np.floating):
+        tol = float(tol)
     rule = make_stop_rule(stop, tol)
     budget = budget or Budget()
     run = lcp.fresh()
     if x0 is not None:
+        if np.iscomplexobj(x0):
+            raise TypeError("x0 has complex values; the LCP is real, pass a real warm start")
         x0 = np.asarray(x0, dtype=np.float64).reshape(-1)
         if x0.shape != (run.n,):
             raise ValueError(f"x0 has shape {x0.shape}; expected ({run.n},)")
@@ -93,22 +102,47 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     else:
         ctx.start()
         try:
-            res = info.func(ctx, p)
-            if not isinstance(res, SolveResult):
-                raise TypeError(f"solver {info.name!r} returned {type(res).__name__}, "
-                                "expected a SolveResult (use ctx.finish(x, w))")
-        except (BudgetExhausted, StopSolver) as exc:
-            res = _close_at_last(ctx, Status.max_iter if isinstance(exc, BudgetExhausted)
-                                 else (ctx.status or Status.max_iter),
-                                 str(exc) or ctx.message)
-        except Exception as exc:  # the sweep must never die for one solver
-            tb = traceback.format_exc(limit=3)
-            res = _close_at_last(ctx, Status.failed, f"{type(exc).__name__}: {exc}")
-            res.info["traceback"] = tb
+            try:
+                with Deadline(budget.max_seconds):
+                    res = _call_solver(info, ctx, p)
+            except BudgetExhausted as exc:    # the timer fired between the solver's return and here
+                res = _close_at_last(ctx, Status.timeout, str(exc))
+            res = _confirm(ctx, res)
         finally:
             ctx.detach()
+        infeasibility_evidence(ctx, res)
     res.time_s = ctx.elapsed()
     return _complete(res, run, ctx, info, p, rule)
+
+
+def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
+    """The solver's result; budget, stop and exceptions closed at the last reported iterate."""
+    try:
+        res = info.func(ctx, p)
+        if not isinstance(res, SolveResult):
+            raise TypeError(f"solver {info.name!r} returned {type(res).__name__}, "
+                            "expected a SolveResult (use ctx.finish(x, w))")
+        return res
+    except BudgetExhausted as exc:
+        return _close_at_last(ctx, Status.timeout if exc.kind == "time" else Status.budget,
+                              str(exc))
+    except StopSolver as exc:
+        return _close_at_last(ctx, ctx.status or Status.max_iter, str(exc) or ctx.message)
+    except Exception as exc:  # the sweep must never die for one solver
+        tb = traceback.format_exc(limit=3)
+        res = _close_at_last(ctx, Status.failed, f"{type(exc).__name__}: {exc}")
+        res.info["traceback"] = tb
+        return res
+
+
+def _confirm(ctx: SolverContext, res: SolveResult) -> SolveResult:
+    """:func:`confirm_convergence`, with an operator that raises recorded as ``failed``."""
+    try:
+        return confirm_convergence(ctx, res)
+    except Exception as exc:  # the user's operator raised on the confirming product
+        res.status = Status.failed
+        res.message = f"confirming the convergence claim failed: {type(exc).__name__}: {exc}"
+        return res
 
 
 def _close_at_last(ctx: SolverContext, status: Status, message: str) -> SolveResult:
@@ -131,18 +165,26 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule
             res.status = Status.diverged
             res.message = res.message or "non-finite solution"
     res.x = x
-    res.mvps = int(run.A.count)
+    try:
+        res.emvps = float(run.emvps())
+    except Exception as exc:  # an undeclared cost whose measuring product raised
+        res.emvps = float("nan")
+        res.status, res.message = Status.failed, f"E-MVPs: {type(exc).__name__}: {exc}"
+    res.mvps = int(run.A.count)             # after emvps(): a cost calibration is counted too
     res.lofi_mvps = run.lofi_counts()
-    res.emvps = float(run.emvps())
     res.mvp_time_s = float(sum(op.seconds for op in run.operators().values()))
     res.iterations = ctx.iterations
     res.history = ctx.monitor.frame()
     res.claimed_kkt_abs = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
-    res.threshold = rule.threshold(run.b)
+    res.threshold = ctx.threshold
+    res.verified = {"kkt_abs": float("nan")}
     if np.all(np.isfinite(x)):
-        res.verified = all_residuals(x, run.residual_w(x), run.b)
-    else:
-        res.verified = {"kkt_abs": float("nan")}
+        try:
+            res.verified = all_residuals(x, run.residual_w(x), run.b)
+        except Exception as exc:  # the user's operator raised on the verifying product
+            res.status = Status.failed
+            res.message = (f"verification failed: {type(exc).__name__}: {exc}"
+                           + (f" (solver: {res.message})" if res.message else ""))
     res.solved = bool(res.verified["kkt_abs"] <= res.threshold)
     res.solver = info.name
     res.params = dataclasses.asdict(params)

@@ -9,7 +9,12 @@ A solver receives a :class:`SolverContext`. It applies ``ctx.A`` (and
 * applies the stop rule and the iteration cap, and
 * enforces the budget (max E-MVPs, max seconds) inside the operators: a product
   that would exceed it raises :class:`~lcpbench.core.operator.BudgetExhausted`, which
-  the framework turns into a ``max_iter`` result at the last reported iterate.
+  the framework turns into a ``budget`` (E-MVPs) or ``timeout`` (seconds)
+  result at the last reported iterate.
+
+After the solver returns, the framework confirms a ``converged`` claim with a
+fresh counted product and looks for evidence of infeasibility
+(:mod:`lcpbench.core.claims`).
 """
 
 from __future__ import annotations
@@ -27,7 +32,25 @@ from lcpbench.core.operator import BudgetExhausted, Operator, apply_uncounted
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
-__all__ = ["Budget", "Monitor", "SolverContext", "StopSolver"]
+__all__ = ["Budget", "Monitor", "SolverContext", "StopSolver", "accuracy_floor"]
+
+
+#: The accuracy floor of an operator with declared ``rtol``: ``ACCURACY_FACTOR rtol ||b||``.
+ACCURACY_FACTOR = 10.0
+
+
+def accuracy_floor(lcp: LCP) -> float:
+    """The smallest residual a solver can resolve with the high operator's declared accuracy.
+
+    A product with relative accuracy ``rtol`` gives ``w = A x + b`` up to about
+    ``rtol ||A x||``, and near a solution ``||A x||`` is of the order of ``||b||``;
+    :data:`ACCURACY_FACTOR` times ``rtol ||b||`` is the floor. 0 for an operator
+    exact to rounding (no ``rtol``).
+    """
+    rtol = lcp.A.rtol
+    if not rtol or lcp.n == 0:
+        return 0.0
+    return ACCURACY_FACTOR * rtol * float(np.linalg.norm(lcp.b))
 
 
 class StopSolver(Exception):
@@ -127,8 +150,17 @@ class SolverContext:
         self.message = ""
         self._prev_kkt: Optional[float] = None
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
+        self._prev: Optional[tuple[np.ndarray, np.ndarray]] = None
+        self._certified: Optional[tuple[np.ndarray, float]] = None
+        #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
+        #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
+        self.norm_A = 0.0
         self._t0: Optional[float] = None
         self._threshold = stop.threshold(lcp.b)
+        self.accuracy_floor = accuracy_floor(lcp)
+        if self.accuracy_floor > self._threshold:
+            self.info["accuracy_floor"] = self.accuracy_floor
+            self._threshold = self.accuracy_floor
         for op in lcp.operators().values():
             op._guard = self._guard
 
@@ -144,8 +176,22 @@ class SolverContext:
 
     @property
     def threshold(self) -> float:
-        """The absolute residual ``||min(x, w)||`` at which the stop rule declares convergence."""
+        """The absolute residual ``||min(x, w)||`` at which the stop rule declares convergence.
+
+        The stop rule's bound, or the accuracy floor of the high-fidelity
+        operator when it declares a relative accuracy ``rtol`` and the floor is
+        larger (:func:`accuracy_floor`): no solver tightens its stop test below
+        what its products can resolve.
+        """
         return self._threshold
+
+    def threshold_note(self) -> str:
+        """A sentence for messages when the operator's accuracy loosened the stop test, else ''."""
+        if "accuracy_floor" not in self.info:
+            return ""
+        return (f" (stop test loosened from {self.stop.threshold(self.b):.3g} to "
+                f"{self._threshold:.3g}: the operator declares relative accuracy "
+                f"rtol={self.A.rtol:g})")
 
     def emvps(self) -> float:
         return self.lcp.emvps()
@@ -160,7 +206,8 @@ class SolverContext:
         if self.lcp.emvps() + extra > self.budget.max_emvps + 1e-9:
             raise BudgetExhausted(f"budget of {self.budget.max_emvps:g} E-MVPs exhausted")
         if self.budget.max_seconds is not None and self.elapsed() > self.budget.max_seconds:
-            raise BudgetExhausted(f"time budget of {self.budget.max_seconds:g} s exhausted")
+            raise BudgetExhausted(f"time budget of {self.budget.max_seconds:g} s exhausted",
+                                  kind="time")
 
     def detach(self) -> None:
         for op in self.lcp.operators().values():
@@ -192,16 +239,25 @@ class SolverContext:
                "time_s": self.elapsed(), "kkt_abs_verified": verified}
         self.monitor.rows.append(row)
         if finite:
-            self._last = (x.copy(), w.copy())
+            nx = float(np.linalg.norm(x))
+            if nx > 0.0:
+                self.norm_A = max(self.norm_A, float(np.linalg.norm(w - self.b)) / nx)
+            if self._last is not None:
+                dx = float(np.linalg.norm(x - self._last[0]))
+                if dx > 0.0:
+                    self.norm_A = max(self.norm_A, float(np.linalg.norm(w - self._last[1])) / dx)
+            self._prev, self._last = self._last, (x.copy(), w.copy())
         stop = False
         if not finite:
             self.status, self.message = Status.diverged, "non-finite iterate or residual"
             stop = True
         else:
-            verdict = self.stop.check(e_abs, e_rel, self.b)
+            verdict = "converged" if e_abs <= self._threshold else \
+                self.stop.check(e_abs, e_rel, self.b)
             if verdict == "converged":
                 self.status = Status.converged
-                self.message = f"||min(x,w)|| = {e_abs:.3g} <= {self._threshold:.3g}"
+                self.message = (f"||min(x,w)|| = {e_abs:.3g} <= {self._threshold:.3g}"
+                                + self.threshold_note())
                 stop = True
             elif verdict == "stagnated":
                 self.status = Status.stagnated
@@ -217,7 +273,7 @@ class SolverContext:
                 self.message = f"iteration cap {self.budget.max_iter} reached"
                 stop = True
             elif self.budget.max_seconds is not None and self.elapsed() > self.budget.max_seconds:
-                self.status = Status.max_iter
+                self.status = Status.timeout
                 self.message = f"time budget of {self.budget.max_seconds:g} s exhausted"
                 stop = True
         self._prev_kkt = e_abs if finite else self._prev_kkt
@@ -234,6 +290,28 @@ class SolverContext:
     def last(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
         """The last finite reported ``(x, w)``, or None."""
         return self._last
+
+    def certify(self, x: np.ndarray, bound: float) -> None:
+        """Record that ``||min(x, A x + b)|| <= bound`` is proven for the iterate ``x``.
+
+        For a solver's shared confirmation (:class:`lcpbench.toolkit.confirm.ConfirmedReport`),
+        whose drift bound covers the rounding of its gradient recurrence: a
+        ``converged`` claim at exactly this ``x`` with ``bound`` within the
+        threshold is then accepted without a fresh product.
+        """
+        self._certified = (np.array(x, dtype=np.float64), float(bound))
+
+    def certified(self, x: np.ndarray) -> Optional[float]:
+        """The bound certified for exactly ``x`` (see :meth:`certify`), or None."""
+        if self._certified is None or self._certified[0].shape != np.shape(x) \
+                or not np.array_equal(self._certified[0], x):
+            return None
+        return self._certified[1]
+
+    @property
+    def previous(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """The finite reported ``(x, w)`` before :attr:`last`, or None."""
+        return self._prev
 
     def oracle_spectrum(self) -> tuple[float, float]:
         """``(lambda_max, max(lambda_min, 0))`` of ``A`` from the framework's oracle.

@@ -24,15 +24,29 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-__all__ = ["Operator", "BudgetExhausted", "apply_uncounted", "as_operator", "measure_cost"]
+__all__ = ["Operator", "BudgetExhausted", "OperatorError", "apply_uncounted", "as_operator",
+           "measure_cost"]
 
 
 class BudgetExhausted(RuntimeError):
     """Raised by a counted product that would exceed the solve's budget.
 
-    The framework catches it and closes the solve with status ``max_iter`` and
-    the last iterate the solver reported, so every solver honours the budget even
-    when the product is requested deep inside a library (e.g. scipy's L-BFGS-B).
+    The framework catches it and closes the solve with status ``budget`` (E-MVPs)
+    or ``timeout`` (seconds, ``kind="time"``) and the last iterate the solver
+    reported, so every solver honours the budget even when the product is
+    requested deep inside a library (e.g. scipy's L-BFGS-B).
+    """
+
+    def __init__(self, message: str, kind: str = "emvps"):
+        super().__init__(message)
+        self.kind = kind
+
+
+class OperatorError(RuntimeError):
+    """An operator's own code raised, or returned an answer of the wrong shape.
+
+    The message names the operator (``"high"`` or the low fidelity's name) and
+    repeats the original error, which the framework records in a ``failed`` result.
     """
 
 
@@ -57,21 +71,30 @@ class Operator(LinearOperator):
     name : str
         Label used in results (``"high"`` for the high-fidelity operator, the
         fidelity name such as ``"p4"`` for low-fidelity ones).
+    rtol : float, optional
+        Declared relative accuracy of a product: ``||A v - exact|| <= rtol ||A v||``
+        (e.g. the tolerance of the iterative solve each product is). Solvers do
+        not tighten their stop test below what it allows (see
+        :meth:`lcpbench.core.context.SolverContext.threshold`). None (default)
+        means exact to rounding.
 
     Notes
     -----
     ``count`` is the number of MVPs (columns) applied, ``seconds`` the wall time
-    spent in products. :meth:`copy` gives an operator that shares the underlying
+    spent in products. The last single-vector product is remembered (input and
+    output), so the framework can confirm a solver's claim at the vector it last
+    applied without paying for the product again. :meth:`copy` gives an operator that shares the underlying
     matrix and declared cost but starts with fresh counters; the framework
     makes one per solve so that solves never share counts.
     """
 
     def __init__(self, A, shape: Optional[tuple] = None, *, cost: Optional[float] = None,
-                 name: str = "high", dtype=np.float64):
+                 name: str = "high", dtype=np.float64, rtol: Optional[float] = None):
         if isinstance(A, Operator):
             impl = A._impl
             shape = A.shape
             cost = A._declared_cost if cost is None else cost
+            rtol = A.rtol if rtol is None else rtol
             self._explicit = A._explicit
         elif _explicit_matrix(A):
             arr = A
@@ -115,7 +138,14 @@ class Operator(LinearOperator):
                 raise ValueError(f"operator {name!r}: cost must be a positive number of seconds "
                                  f"per MVP, got {cost}")
         self._declared_cost = cost
+        if rtol is not None:
+            rtol = float(rtol)
+            if not (np.isfinite(rtol) and 0 <= rtol < 1):
+                raise ValueError(f"operator {name!r}: rtol (relative accuracy of a product) must "
+                                 f"be in [0, 1), got {rtol}")
+        self.rtol: Optional[float] = rtol
         self.name = name
+        self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
         self.count = 0
         self.seconds = 0.0
         self.calls = 0
@@ -132,11 +162,19 @@ class Operator(LinearOperator):
         if self._guard is not None:
             self._guard(self, k)
         t0 = time.perf_counter()
-        Y = _raw_apply(self._impl, X)
+        Y = _checked_apply(self, X)
         self.seconds += time.perf_counter() - t0
         self.count += k
         self.calls += 1
+        if X.ndim == 1:
+            self._last = (X.copy(), Y.copy())
         return Y
+
+    def last_product(self, x: np.ndarray) -> Optional[np.ndarray]:
+        """``A x`` if the last counted single-vector product was at exactly ``x``, else None."""
+        if self._last is None or self._last[0].shape != np.shape(x):
+            return None
+        return self._last[1].copy() if np.array_equal(self._last[0], x) else None
 
     def _matvec(self, x):
         x = np.asarray(x, dtype=np.float64)
@@ -190,6 +228,22 @@ class Operator(LinearOperator):
                 f"count={self.count}, cost={self.cost}>")
 
 
+def _checked_apply(op: "Operator", X: np.ndarray) -> np.ndarray:
+    """``_raw_apply`` that names the operator when its code raises or answers with a wrong shape."""
+    try:
+        Y = _raw_apply(op._impl, X)
+    except (BudgetExhausted, OperatorError):
+        raise
+    except Exception as exc:
+        raise OperatorError(f"operator {op.name!r} raised {type(exc).__name__}: {exc}") from exc
+    want = (op.shape[0],) + X.shape[1:]
+    if Y.shape != want:
+        raise OperatorError(f"operator {op.name!r} returned an array of shape {Y.shape} for an "
+                            f"input of shape {X.shape}; expected {want}: its matvec must map "
+                            f"length-{op.shape[1]} vectors to length-{op.shape[0]} vectors")
+    return Y
+
+
 def _raw_apply(impl, X: np.ndarray) -> np.ndarray:
     if isinstance(impl, np.ndarray):
         return impl @ X
@@ -204,9 +258,9 @@ def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:
     """Apply ``op`` without counting or timing: for the framework's verification only.
 
     Solvers must never call this; the test-suite checks that no solver module
-    imports it.
+    imports it. Raises :class:`OperatorError` naming the operator when its code fails.
     """
-    return _raw_apply(op._impl, np.asarray(X, dtype=np.float64))
+    return _checked_apply(op, np.asarray(X, dtype=np.float64))
 
 
 def dense_uncounted(op: Operator) -> np.ndarray:

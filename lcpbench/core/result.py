@@ -19,17 +19,28 @@ HISTORY_COLUMNS = ["iter", "mvps", "lofi_mvps", "emvps", "kkt_abs", "kkt_rel", "
 class Status(str, enum.Enum):
     """How a solve ended.
 
-    ``converged``: the stop rule's absolute test held at the solver's own ``w``.
-    ``max_iter``: the iteration cap or the budget (E-MVPs, seconds) ran out.
+    ``converged``: the stop rule's absolute test held, and the framework
+    confirmed it at the returned ``x`` with a fresh counted product (or the
+    solver's last product was already at that ``x``).
+    ``max_iter``: the iteration cap (the solver's own or the budget's) ran out.
+    ``budget``: the E-MVP budget ran out (set by the framework).
+    ``timeout``: the wall-time budget ``max_seconds`` ran out (set by the framework).
     ``stagnated``: the paper's relative stagnation measure fell below tol while
-    the absolute residual did not, or the method could make no more progress.
+    the absolute residual did not, the method could make no more progress, or a
+    fresh product refuted the solver's convergence claim.
+    ``infeasible``: the iterates give evidence that the LCP has no solution: a
+    direction ``d >= 0`` with ``A d ~ 0`` and ``b'd < 0`` (confirmed by a counted
+    product; the message gives the bound it proves).
     ``diverged``: the iterate or residual became non-finite or blew up.
-    ``failed``: the solver raised, or a backend reported failure.
+    ``failed``: the solver raised, an operator raised, or a backend reported failure.
     """
 
     converged = "converged"
     max_iter = "max_iter"
+    budget = "budget"
+    timeout = "timeout"
     stagnated = "stagnated"
+    infeasible = "infeasible"
     diverged = "diverged"
     failed = "failed"
 

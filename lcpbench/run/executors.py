@@ -26,7 +26,7 @@ import signal
 import time
 from typing import Callable, Optional
 
-__all__ = ["ForkedCall", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor",
+__all__ = ["ForkedCall", "call_with_deadline", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor",
            "EXECUTORS"]
 
 EXECUTORS = ("local", "process", "dask")
@@ -36,7 +36,7 @@ EXECUTORS = ("local", "process", "dask")
 GRACE_S = 5.0
 
 Record = Callable[[dict, object], None]
-Failure = Callable[[object, str, str], dict]
+Failure = Callable[[object, str, str, Optional[float]], dict]
 
 
 class ForkedCall:
@@ -62,6 +62,7 @@ class ForkedCall:
             finally:
                 os._exit(code)
         os.close(w)
+        self.started = time.monotonic()
         self.pid, self.fd = pid, r
         self.chunks: list[bytes] = []
         self.done = False
@@ -85,9 +86,15 @@ class ForkedCall:
             return True
         return False
 
+    @property
+    def elapsed(self) -> float:
+        """Seconds from the fork to the end of the child (or to now while it runs)."""
+        return getattr(self, "ended", time.monotonic()) - self.started
+
     def _reap(self, timeout: bool = False) -> None:
         _, status = os.waitpid(self.pid, 0)
         os.close(self.fd)
+        self.ended = time.monotonic()
         self.done = True
         if timeout:
             self.result = ("timeout", None)
@@ -107,14 +114,28 @@ def _deadline(timeout: Optional[float]) -> Optional[float]:
     return None if timeout is None else time.monotonic() + timeout + GRACE_S
 
 
-def outcome(call_result, run, timeout, failure: Failure):
-    """``(row, history)`` from a :class:`ForkedCall` result."""
+def outcome(call_result, run, timeout, failure: Failure, elapsed: Optional[float] = None):
+    """``(row, history)`` from a :class:`ForkedCall` result (``elapsed``: the child's seconds)."""
     kind, value = call_result
     if kind == "ok":
         return value
     if kind == "timeout":
-        return failure(run, "timeout", f"killed after {timeout:g} s (+{GRACE_S:g} s grace)"), None
-    return failure(run, "failed", value), None
+        return failure(run, "timeout", f"killed after {timeout:g} s (+{GRACE_S:g} s grace)",
+                       elapsed), None
+    return failure(run, "failed", value, elapsed), None
+
+
+def call_with_deadline(fn: Callable, args: tuple, timeout: Optional[float]):
+    """``fn(*args)`` in a forked child killed after ``timeout`` s: ``(kind, value)``.
+
+    ``kind`` is ``ok`` (``value`` is the result), ``error`` (the exception's
+    text), ``timeout`` or ``died``. For work the parent must not wait on
+    unboundedly, such as an instance's reference solve.
+    """
+    call = ForkedCall(fn, args, None if timeout is None else time.monotonic() + timeout)
+    while not call.poll(wait=0.05):
+        pass
+    return call.result
 
 
 class LocalExecutor:
@@ -151,7 +172,7 @@ class ProcessExecutor:
             still = []
             for run, call in active:
                 if call.poll():
-                    record(*outcome(call.result, run, self.timeout, failure))
+                    record(*outcome(call.result, run, self.timeout, failure, call.elapsed))
                 else:
                     still.append((run, call))
             active = still
@@ -162,7 +183,7 @@ def _dask_task(work: Callable, run, timeout: Optional[float]):
     call = ForkedCall(work, (run,), _deadline(timeout))
     while not call.poll(wait=0.05):
         pass
-    return call.result
+    return call.result, call.elapsed
 
 
 class DaskExecutor:
@@ -205,12 +226,12 @@ class DaskExecutor:
             for fut in as_completed(futures):
                 run = futures[fut]
                 try:
-                    result = fut.result()
+                    result, elapsed = fut.result()
                 except Exception as exc:  # the worker itself died (KilledWorker, ...)
                     record(failure(run, "failed", f"dask task failed: {type(exc).__name__}: "
-                                                  f"{exc}"), None)
+                                                  f"{exc}", None), None)
                     continue
-                record(*outcome(result, run, self.timeout, failure))
+                record(*outcome(result, run, self.timeout, failure, elapsed))
         finally:
             client.close()
             if cluster is not None:

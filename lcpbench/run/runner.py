@@ -4,14 +4,17 @@ Every run is verified by the framework (one uncounted product, inside
 :func:`lcpbench.core.api.run_solver`) and compared with the instance's reference
 when one exists: a stored one (planted solutions, stored sets) or the
 consensus of the QP solvers (:func:`lcpbench.reference`) for explicit
-matrices up to ``reference_max_n``.
+matrices up to ``reference_max_n``, computed under the same timeout and in a
+forked child like a run (a reference that fails or hangs is recorded in the
+rows' ``ref_solvers``, not waited for).
 
 Execution is delegated to an executor (:mod:`lcpbench.run.executors`): in this
 process, in forked children (at most ``jobs`` at a time, each inheriting the
 problem instances: nothing is pickled but the result) or on Dask. A run over
 its timeout is killed and recorded as ``timeout``; a run whose process dies
-is recorded as ``failed`` with its exit status. The sweep never stops for one
-run.
+is recorded as ``failed`` with its exit status (and run once more on resume,
+see :meth:`lcpbench.run.store.RunStore.done_ids`). The sweep never stops for
+one run.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from lcpbench.core.lcp import LCP
 from lcpbench.core.reference import reference as consensus_reference
 from lcpbench.core.registry import get_problem, get_solver
 from lcpbench.core.specs import make_params
+from lcpbench.run.executors import call_with_deadline
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import RunSpec, Spec, Sweep, per_low
 from lcpbench.core.clock import utc_now
@@ -86,19 +90,37 @@ def plan(sweep: Sweep, progress: bool = False) -> Plan:
     return Plan(sweep, runs, instances, skipped)
 
 
-def instance_reference(lcp: LCP, max_n: int = REFERENCE_MAX_N) -> Optional[dict]:
-    """The reference of an instance: stored, else the QP consensus for explicit A."""
+def instance_reference(lcp: LCP, max_n: int = REFERENCE_MAX_N,
+                       timeout: Optional[float] = None) -> Optional[dict]:
+    """The reference of an instance: stored, else the QP consensus for explicit A.
+
+    The consensus runs in a forked child under ``timeout`` (the per-run limit),
+    so a reference backend that hangs cannot stall the sweep. A reference that
+    fails, dies or times out is recorded as ``{"failed": reason}`` (the runs of
+    the instance then carry the reason in ``ref_solvers``) instead of being
+    waited for. None: the instance gets no reference (matrix-free or too large).
+    """
     if lcp.reference is not None:
         ref = dict(lcp.reference)
         ref.setdefault("solvers", ref.get("solvers", ["stored"]))
         return ref
     if not lcp.A.explicit or lcp.n > max_n:
         return None
-    try:
-        r = consensus_reference(lcp)
-    except RuntimeError:
-        return None
-    return r.as_dict()
+    if timeout is None:
+        try:
+            return consensus_reference(lcp).as_dict()
+        except RuntimeError as exc:
+            return {"failed": str(exc)}
+    kind, value = call_with_deadline(_consensus_dict, (lcp,), timeout)
+    if kind == "ok":
+        return value
+    if kind == "timeout":
+        return {"failed": f"reference solve killed after {timeout:g} s"}
+    return {"failed": f"reference solve failed: {value}"}
+
+
+def _consensus_dict(lcp: LCP) -> dict:
+    return consensus_reference(lcp).as_dict()
 
 
 def _rel(a: np.ndarray, b: np.ndarray) -> float:
@@ -127,14 +149,13 @@ def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float
     budget = Budget(max_emvps=run.max_emvps, max_seconds=timeout)
     res = run_solver(lcp, run.solver.name, stop=run.stop, tol=run.tol, budget=budget,
                      params=run.solver.values())
-    status, message = res.status.value, res.message
-    if timeout is not None and "time budget" in message:
-        status = "timeout"
     v = res.verified
     row = _base_row(run, lcp)
-    row.update({"status": status, "message": message, **result_fields(res),
+    row.update({"status": res.status.value, "message": res.message, **result_fields(res),
                 "info": json.dumps(res.info, sort_keys=True, default=str), "started": started})
-    if ref is not None and lcp.n > 0 and np.all(np.isfinite(res.x)):
+    if ref is not None and "failed" in ref:
+        row["ref_solvers"] = f"none ({ref['failed']})"
+    elif ref is not None and lcp.n > 0 and np.all(np.isfinite(res.x)):
         w = lcp.residual_w(res.x)
         row["ref_err_w"] = _rel(w, np.asarray(ref["w"]))
         f = float(v.get("objective", np.nan))
@@ -159,18 +180,26 @@ def _base_row(run: RunSpec, lcp: LCP) -> dict:
             "repeat": run.repeat}
 
 
-def _failure_row(run: RunSpec, lcp: LCP, status: str, message: str) -> dict:
+def _failure_row(run: RunSpec, lcp: LCP, status: str, message: str,
+                 elapsed: Optional[float] = None) -> dict:
+    """The row of a run that produced no result (timeout, died, framework error)."""
     row = _base_row(run, lcp)
     row.update({"status": status, "message": message, "solved": False,
                 "false_convergence": False, "started": utc_now(), "finished": utc_now()})
+    if elapsed is not None:
+        row["time_s"] = float(elapsed)
     return row
 
 
 def _safe_perform(run, lcp, ref, timeout):
+    import time
+
+    t0 = time.monotonic()
     try:
         return perform(run, lcp, ref, timeout)
     except Exception as exc:  # the framework itself failed on this run: record it
-        return _failure_row(run, lcp, "failed", f"{type(exc).__name__}: {exc}"), None
+        return _failure_row(run, lcp, "failed", f"{type(exc).__name__}: {exc}",
+                            time.monotonic() - t0), None
 
 
 def machine_info() -> dict:
@@ -184,12 +213,11 @@ def machine_info() -> dict:
             versions[pkg] = md.version(pkg)
         except md.PackageNotFoundError:
             versions[pkg] = None
-    blas = None
     try:
         cfg = np.show_config(mode="dicts")
         blas = cfg.get("Build Dependencies", {}).get("blas", {})
-    except Exception:
-        pass
+    except (TypeError, ValueError, AttributeError) as exc:   # numpy without mode="dicts"
+        blas = {"unknown": f"{type(exc).__name__}: {exc}"}
     threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                                "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
     return {"python": sys.version.split()[0], "platform": platform.platform(),
@@ -205,7 +233,7 @@ def git_commit() -> Optional[str]:
         out = subprocess.run(["git", "-C", here, "rev-parse", "HEAD"], capture_output=True,
                              text=True, timeout=5)
         return out.stdout.strip() or None
-    except Exception:
+    except (OSError, subprocess.SubprocessError):   # no git, or not a checkout
         return None
 
 
@@ -225,7 +253,7 @@ def remote_work(run: RunSpec, timeout: Optional[float] = None,
         _WORKER_CACHE[key] = (generate(run.problem), {})
     lcps, refs = _WORKER_CACHE[key]
     if run.instance not in refs:
-        refs[run.instance] = instance_reference(lcps[run.instance], reference_max_n)
+        refs[run.instance] = instance_reference(lcps[run.instance], reference_max_n, timeout)
     return _safe_perform(run, lcps[run.instance], refs[run.instance], timeout)
 
 
@@ -256,6 +284,10 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     kind = executor or ("process" if jobs > 1 else "local")
     runner = make_executor(kind, jobs, timeout, scheduler)
+    for path, line, reason in store.corrupt:
+        print(f"lcpbench run: {path}:{line}: {reason}; the line was moved to {path}.corrupt and "
+              "its run is run again", file=sys.stderr)
+    store.compact_history()
     done = store.done_ids()
     todo = [r for r in p.runs if r.run_id not in done]
     counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
@@ -266,7 +298,7 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     def ref_of(run: RunSpec) -> Optional[dict]:
         key = (_problem_key(run.problem), run.instance)
         if key not in refs:
-            refs[key] = instance_reference(lcp_of(run), reference_max_n)
+            refs[key] = instance_reference(lcp_of(run), reference_max_n, timeout)
         return refs[key]
 
     def local_work(run: RunSpec):
@@ -276,8 +308,8 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
         work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n)
     else:
         work = local_work
-        for run in todo:        # references before forking, so children inherit them
-            ref_of(run)
+        for run in todo:        # references before the runs (each under the run timeout, in a
+            ref_of(run)         # child of its own), so the runs' children inherit them
 
     bar = tqdm(total=len(todo), disable=quiet, unit="run", desc="lcpbench run", file=sys.stderr)
 
@@ -295,8 +327,9 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
         bar.update(1)
         bar.set_postfix(unsolved=counts["failed"], timeout=counts["timeout"])
 
-    def failure(run: RunSpec, status: str, message: str) -> dict:
-        return _failure_row(run, lcp_of(run), status, message)
+    def failure(run: RunSpec, status: str, message: str,
+                elapsed: Optional[float] = None) -> dict:
+        return _failure_row(run, lcp_of(run), status, message, elapsed)
 
     try:
         runner.run(todo, work, failure, record)

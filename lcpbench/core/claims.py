@@ -1,0 +1,140 @@
+"""What a result may claim: convergence confirmed by a fresh product, infeasibility from evidence.
+
+Both checks run in the framework after the solver returns, once for every
+solver family, and both use counted products of the high-fidelity operator:
+
+* :func:`confirm_convergence`: a ``converged`` status is a claim about
+  ``A x + b`` at the returned ``x``. Solvers that update ``w`` by a recurrence
+  (``w + t A d``) can drift from it by rounding, or by the accuracy of an
+  inexact operator, and on problems without a solution the drift can be
+  catastrophic. The claim is therefore accepted only when a bound that covers
+  the recurrence's drift (rounding and the operator's declared accuracy) was
+  certified for exactly that ``x`` by the solver's shared confirmation, or the
+  operator's own last product was taken at exactly that ``x`` (both free), or
+  one fresh counted product confirms it; a claim the fresh product refutes
+  becomes ``stagnated``, never ``converged``.
+* :func:`infeasibility_evidence`: for a solve that ended without converging,
+  a direction ``d >= 0`` (the iterate, or the last step) with ``A d ~ 0`` and
+  ``b'd < 0`` proves by Farkas' lemma that every feasible point is far away:
+  ``d'(A z + b) >= 0`` for feasible ``z`` gives ``||z|| >= -b'd / ||(A d)_+||``.
+  When the solver's own ``w`` suggests such a direction, one counted product
+  ``A d`` (allowed past the budget: the solve is over) confirms it, and the
+  status becomes ``infeasible`` with the bound in the message.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+
+from lcpbench.core.context import SolverContext
+from lcpbench.core.operator import BudgetExhausted
+from lcpbench.core.residuals import kkt_abs
+from lcpbench.core.result import SolveResult, Status
+
+__all__ = ["confirm_convergence", "infeasibility_evidence", "NULL_RTOL"]
+
+#: A direction counts as a null direction when ``||(A d)_+|| <= NULL_RTOL ||A||``:
+#: every feasible point then has a norm of at least ``|b'd| / (NULL_RTOL ||A||)``.
+NULL_RTOL = 1e-10
+
+
+def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
+    """Confirm ``res``'s ``converged`` at its ``x`` by a counted product (or refute it).
+
+    Called by the framework while the budget still applies; a product the
+    budget refuses ends the solve as ``budget`` (or ``timeout``) instead of an
+    unconfirmed ``converged``. Records ``info['confirmation_mvps']`` and
+    ``info['confirmed_kkt_abs']``.
+    """
+    if res.status != Status.converged or ctx.n == 0:
+        return res
+    x = np.asarray(res.x, dtype=np.float64).reshape(-1)
+    if x.shape != (ctx.n,) or not np.all(np.isfinite(x)):
+        return res                          # the framework's checks fail it later
+    bound = ctx.certified(x)
+    if bound is not None and bound <= ctx.threshold:
+        ctx.info["confirmed_by"] = "drift bound"
+        return res
+    Ax = ctx.A.last_product(x)
+    if Ax is None:
+        before = ctx.A.count
+        try:
+            Ax = ctx.A @ x                  # free for x = 0 (a zero vector is never counted)
+        except BudgetExhausted as exc:
+            res.status = Status.timeout if exc.kind == "time" else Status.budget
+            res.message = (f"{exc} before the convergence claim at the returned x could be "
+                           "confirmed by a fresh product")
+            return res
+        if ctx.A.count > before:
+            ctx.info["confirmation_mvps"] = ctx.info.get("confirmation_mvps", 0) + 1
+    fresh = kkt_abs(x, Ax + ctx.b)
+    ctx.info["confirmed_kkt_abs"] = fresh
+    if fresh <= ctx.threshold:
+        return res
+    res.status = Status.stagnated
+    res.message = (f"convergence refuted: the solver's w gave {kkt_abs(x, res.w):.3g} but a fresh "
+                   f"product at the returned x gives ||min(x, Ax+b)|| = {fresh:.3g} > "
+                   f"{ctx.threshold:.3g} (the solver's recurrence drifted from A x + b)")
+    ctx.info["refuted_convergence"] = True
+    return res
+
+
+def _candidates(ctx: SolverContext, x: np.ndarray, w: np.ndarray):
+    """Unit directions ``d >= 0`` with the solver's own estimate of ``A d``."""
+    nx = float(np.linalg.norm(x))
+    if nx > 0.0:
+        yield x / nx, (w - ctx.b) / nx
+    prev = ctx.previous
+    if prev is not None and ctx.last is not None:
+        dx = ctx.last[0] - prev[0]
+        if np.all(dx >= 0.0):
+            nd = float(np.linalg.norm(dx))
+            if nd > 0.0:
+                yield dx / nd, (ctx.last[1] - prev[1]) / nd
+
+
+def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[float]:
+    """Set ``res`` to ``infeasible`` when a null direction with ``b'd < 0`` is confirmed.
+
+    Returns the proven lower bound on the norm of any feasible point, or None
+    when there is no such evidence. ``||A||`` is the context's secant estimate
+    (a lower bound, so the test errs towards not declaring). At most one counted
+    product, recorded in ``info['infeasibility_mvps']``.
+    """
+    if res.status in (Status.converged, Status.failed, Status.infeasible) or ctx.n == 0:
+        return None
+    x = np.asarray(res.x, dtype=np.float64).reshape(-1)
+    w = np.asarray(res.w, dtype=np.float64).reshape(-1)
+    if x.shape != (ctx.n,) or w.shape != (ctx.n,) or not (np.all(np.isfinite(x))
+                                                         and np.all(np.isfinite(w))):
+        return None
+    if np.any(x < 0.0) or ctx.norm_A <= 0.0:
+        return None
+    tol = NULL_RTOL * ctx.norm_A
+    best = None
+    for d, Ad in _candidates(ctx, x, w):
+        bd = float(ctx.b @ d)
+        if bd < 0.0 and float(np.linalg.norm(np.maximum(Ad, 0.0))) <= tol:
+            best = (d, bd)
+            break
+    if best is None:
+        return None
+    d, bd = best
+    ctx.detach()                               # the solve is over: this product is evidence
+    try:
+        Ad = ctx.A @ d                         # d != 0: one counted product
+    except Exception as exc:                   # an operator failure here is not the solver's
+        ctx.info["infeasibility_check_error"] = f"{type(exc).__name__}: {exc}"
+        return None
+    ctx.info["infeasibility_mvps"] = ctx.info.get("infeasibility_mvps", 0) + 1
+    pos = float(np.linalg.norm(np.maximum(Ad, 0.0)))
+    if pos > tol:
+        return None
+    bound = float("inf") if pos == 0.0 else -bd / pos
+    res.status = Status.infeasible
+    res.message = (f"no solution: d >= 0 with b'd = {bd:.3g} and ||(A d)_+|| = {pos:.3g} "
+                   f"(<= {NULL_RTOL:g} ||A||, ||A|| >= {ctx.norm_A:.3g}), so every feasible "
+                   f"point has ||x|| >= {bound:.3g}; ended as: {res.message}")
+    return bound

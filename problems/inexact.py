@@ -1,0 +1,106 @@
+"""Inexact operators: LCPs whose every product is an iterative solve at a stated tolerance.
+
+Every product of the live mobility is a GMRES solve that meets its tolerance
+only approximately, so ``A v`` carries a relative error of about that
+tolerance and two products of nearby vectors do not differ by exactly ``A``
+times their difference. This family reproduces the situation with a small
+sparse SPD matrix ``K`` (a shifted 1-D Laplacian with random positive
+weights) and ``A = K^{-1}``: each product ``v -> K^{-1} v`` is a conjugate
+gradient solve at relative tolerance ``rtol``. The operator declares that
+accuracy (``Operator(..., rtol=rtol)``), so solvers loosen their stop test to
+what it allows and say so in the result's message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, cg
+
+from lcpbench import LCP, Operator, register_problem
+
+__all__ = ["inexact_inverse", "inexact_lcp", "stiffness"]
+
+
+def stiffness(rng: np.random.Generator, n: int, shift: float) -> sp.csr_matrix:
+    """A weighted 1-D Laplacian plus ``shift`` times the identity (SPD, sparse)."""
+    c = rng.uniform(0.5, 2.0, n + 1)                     # conductances of the n + 1 links
+    main = c[:-1] + c[1:] + shift
+    return sp.diags([-c[1:-1], main, -c[1:-1]], [-1, 0, 1], format="csr")
+
+
+def inexact_inverse(K: sp.spmatrix, rtol: float) -> LinearOperator:
+    """``v -> K^{-1} v`` by conjugate gradients to relative tolerance ``rtol``.
+
+    The solve starts from zero every time, so the same ``v`` always gives the
+    same (inexact) answer; nearby vectors do not. A solve that does not reach
+    its tolerance in ``10 n`` iterations raises, naming the residual.
+    """
+    n = K.shape[0]
+
+    def matvec(v: np.ndarray) -> np.ndarray:
+        v = np.asarray(v, dtype=np.float64).reshape(-1)
+        y, code = cg(K, v, rtol=rtol, atol=0.0, maxiter=10 * n)
+        if code != 0:
+            res = np.linalg.norm(K @ y - v) / max(np.linalg.norm(v), 1e-300)
+            raise RuntimeError(f"inner CG did not reach rtol {rtol:g} (relative residual "
+                               f"{res:.3g} after {10 * n} iterations)")
+        return y
+
+    return LinearOperator((n, n), matvec=matvec, dtype=np.float64)
+
+
+def inexact_lcp(rng: np.random.Generator, n: int, rtol: float, *, shift: float = 1e-2,
+                name: str = "inexact") -> LCP:
+    """One LCP with ``A = K^{-1}`` applied by CG at ``rtol`` and ``b ~ N(0, 1)``.
+
+    The operator declares ``rtol`` as its accuracy; ``meta`` records ``rtol``
+    and ``shift`` (the smallest eigenvalue of ``K`` is above ``shift``, so
+    ``||A||_2 < 1 / shift``).
+    """
+    K = stiffness(rng, n, shift)
+    A = Operator(inexact_inverse(K, rtol), rtol=rtol)
+    b = rng.standard_normal(n)
+    return LCP(A, b, name=name, meta={"family": "inexact", "n": int(n), "rtol": float(rtol),
+                                       "shift": float(shift)})
+
+
+@dataclass(frozen=True)
+class InexactParams:
+    """Parameters of inexact.
+
+    Parameters
+    ----------
+    count : int
+        Number of instances (default 4).
+    seed : int
+        Instance i uses ``default_rng([seed, i])`` (default 0).
+    n : int
+        Size of every instance (default 60).
+    rtol : float
+        Relative tolerance of every inner CG solve, the operator's declared
+        accuracy (default 1e-6, the GMRES tolerance of the live backend's
+        cheaper settings).
+    """
+
+    count: int = 4
+    seed: int = 0
+    n: int = 60
+    rtol: float = 1e-6
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.count, int) and self.count >= 1):
+            raise ValueError(f"count must be an integer >= 1, got {self.count!r}")
+        if not (isinstance(self.n, int) and self.n >= 1):
+            raise ValueError(f"n must be an integer >= 1, got {self.n!r}")
+        if not (np.isfinite(self.rtol) and 0 < self.rtol < 1):
+            raise ValueError(f"rtol must be in (0, 1), got {self.rtol!r}")
+
+
+@register_problem("inexact", InexactParams)
+def inexact(p: InexactParams) -> list[LCP]:
+    """LCPs whose products are conjugate-gradient solves at a stated tolerance."""
+    return [inexact_lcp(np.random.default_rng([p.seed, i]), p.n, p.rtol,
+                        name=f"inexact-{i}") for i in range(p.count)]
