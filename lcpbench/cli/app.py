@@ -276,8 +276,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("lcpbench: interrupted; rows already written are kept (re-run to resume)",
               file=sys.stderr)
         return 130
-    except (KeyError, ValueError, TypeError, FileNotFoundError, StoreLocked) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        print(f"lcpbench {args.command}: error: {msg}", file=sys.stderr)
+    except _user_errors() as exc:
+        print(f"lcpbench {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _user_errors() -> tuple:
+    """Exceptions that mean bad input (a spec, a value, a file): one line and exit 2."""
+    from lcpbench.problems.stored import StoredSetError
+
+    return (KeyError, ValueError, TypeError, OSError, ImportError, StoreLocked, StoredSetError)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line (a missing module gets the install hint)."""
+    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+    if isinstance(exc, ImportError) and getattr(exc, "name", None):
+        msg = f"{msg}; install it (pip install -e \".[test]\" has every optional dependency)"
+    elif isinstance(exc, OSError) and getattr(exc, "filename", None) and exc.strerror:
+        msg = f"{exc.filename}: {exc.strerror}"
+    return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
 

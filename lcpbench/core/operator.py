@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-__all__ = ["Operator", "BudgetExhausted", "apply_uncounted", "as_operator"]
+__all__ = ["Operator", "BudgetExhausted", "NonFiniteProduct", "apply_uncounted", "as_operator"]
 
 
 class BudgetExhausted(RuntimeError):
@@ -33,6 +33,14 @@ class BudgetExhausted(RuntimeError):
     The framework catches it and closes the solve with status ``max_iter`` and
     the last iterate the solver reported, so every solver honours the budget even
     when the product is requested deep inside a library (e.g. scipy's L-BFGS-B).
+    """
+
+
+class NonFiniteProduct(ArithmeticError):
+    """Raised when an operator returns NaN or Inf for a finite input.
+
+    The framework closes the solve with status ``failed`` and this message, so a
+    broken operator is never reported as an infeasible or indefinite problem.
     """
 
 
@@ -119,6 +127,7 @@ class Operator(LinearOperator):
         self.count = 0
         self.seconds = 0.0
         self.calls = 0
+        self.nonfinite_at: Optional[int] = None
         self._guard: Optional[Callable[["Operator", int], None]] = None
 
     # ------------------------------------------------------------------ counting
@@ -136,6 +145,11 @@ class Operator(LinearOperator):
         self.seconds += time.perf_counter() - t0
         self.count += k
         self.calls += 1
+        if not np.all(np.isfinite(Y)) and np.all(np.isfinite(X)):
+            self.nonfinite_at = self.nonfinite_at or self.count
+            raise NonFiniteProduct(f"operator returned non-finite values at product "
+                                   f"{self.nonfinite_at}"
+                                   + ("" if self.name == "high" else f" (operator {self.name!r})"))
         return Y
 
     def _matvec(self, x):
