@@ -43,12 +43,12 @@ _MONO_DOC = """
         paper uses full memory since it converges in about ten iterations).
     scaling : str
         ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
-        authors' code does; ``identity``: ``D = I`` as written in algorithm pqn.
+        authors' code does; ``identity``: ``D = I`` as in the paper's Mono-PQN algorithm.
         ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
     gamma : float
         Damping of the BB2 scaling (authors' value 0.8).
     prox_tol : float
-        Tolerance of the semi-smooth Newton root solve of Proposition prop-nnProx.
+        Tolerance of the semi-smooth Newton root solve of the weighted prox.
     prox_max_iter : int
         Newton iterations before the weighted prox falls back to an accelerated
         projected gradient solve in the metric (reported as ``prox_fallbacks``).
@@ -60,7 +60,7 @@ _MONO_DOC = """
 
 _INNER_DOC = """
     inner_rtol : float
-        The subproblem (eq. pqnSubproblem) is solved until its residual
+        The Bi-PQN subproblem is solved until its residual
         ``||min(z, B(z - x) + g)||`` falls below ``inner_rtol`` times its value at
         ``z = x`` (which is the outer residual).
     inner_max_iter : int
@@ -69,7 +69,7 @@ _INNER_DOC = """
         Low-fidelity pairs carried across subproblems (0: all).
     warm_rtol : float
         Relative tolerance of the low-fidelity initialisation (the first
-        subproblem, algorithm bpqn line 1).
+        subproblem, line 1 of the paper's Bi-PQN).
     warm_max_iter : int
         Iteration cap of the low-fidelity initialisation.
     max_fallbacks : int
@@ -190,7 +190,7 @@ def _start(ctx: SolverContext):
 
 @register_solver("mono-pqn", MonoPQNParams)
 def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
-    """Mono-fidelity proximal quasi-Newton method (algorithm pqn of the method paper).
+    """Mono-fidelity proximal quasi-Newton method (Mono-PQN of the method paper).
 
     Each iteration: ``x~ = x - H g`` with ``H = B^-1`` applied by the BFGS
     two-loop recursion in O(n r); ``x^ = prox^B(x~)`` by Proposition
@@ -252,7 +252,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
 
 @register_solver("bi-pqn", BiPQNParams, multifidelity=True)
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
-    """Bi-fidelity proximal quasi-Newton method (algorithm bpqn of the method paper).
+    """Bi-fidelity proximal quasi-Newton method (Bi-PQN of the method paper).
 
     ``B^(0) = A_low`` (the operator named by ``low``); each outer iteration
     solves the subproblem of eq. pqnSubproblem,

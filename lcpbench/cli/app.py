@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import textwrap
 from typing import Optional, Sequence
 
 import numpy as np
@@ -163,8 +164,10 @@ def cmd_list(args: argparse.Namespace) -> int:
         if args.brief:
             continue
         for prm in e["params"]:
-            doc = f"  {prm['doc']}" if prm["doc"] else ""
-            print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}{doc}")
+            print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}")
+            if prm["doc"]:
+                print(textwrap.fill(prm["doc"], width=100, initial_indent=" " * 10,
+                                    subsequent_indent=" " * 10, break_on_hyphens=False))
     print("\nUse as NAME:key=value,...  e.g.  bi-pqn:low=p4,inner_rtol=0.01")
     return 0
 

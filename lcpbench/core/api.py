@@ -180,7 +180,7 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     tol : float
         Tolerance of the stop rule.
     stop : {"paper", "kkt"} or StopRule
-        ``paper``: absolute or relative KKT error below tol (eq. kkt-error);
+        ``paper``: absolute or relative KKT error below tol (the paper's rule);
         ``kkt``: ``||min(x, Ax+b)|| <= tol (1 + ||b||)``.
     x0 : array_like, optional
         Warm start (e.g. the previous time step's forces).

@@ -385,7 +385,7 @@ def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
 
 
 def _param_docs(doc: str) -> dict[str, str]:
-    """Parse a numpy-style ``Parameters`` section into ``{name: first line}``."""
+    """Parse a numpy-style ``Parameters`` section into ``{name: whole description}``."""
     lines = doc.splitlines()
     out: dict[str, str] = {}
     in_params = False
@@ -410,6 +410,5 @@ def _param_docs(doc: str) -> dict[str, str]:
                 out.setdefault(n, "")
         elif s and cur:
             for n in cur:
-                if not out[n]:
-                    out[n] = s
+                out[n] = f"{out[n]} {s}".strip()
     return out

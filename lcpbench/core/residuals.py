@@ -145,4 +145,4 @@ def make_stop_rule(stop: Union[str, StopRule], tol: float) -> StopRule:
     if stop == "kkt":
         return StopRule("kkt", tol=float(tol), atol=float(tol), rtol=float(tol))
     raise ValueError(f"unknown stop rule {stop!r}; use 'paper' (abs or relative KKT below tol, "
-                     "eq. kkt-error) or 'kkt' (||min(x,w)|| <= tol (1 + ||b||))")
+                     "the paper's KKT error) or 'kkt' (||min(x,w)|| <= tol (1 + ||b||))")
