@@ -172,7 +172,8 @@ def _run_locked(args: argparse.Namespace, sweep: Sweep, p: Plan, store: RunStore
     quiet = args.quiet
     meta = {"argv": ["lcpbench"] + list(args.argv), "config": config,
             "timeout": sweep.timeout, "jobs": args.jobs,
-            "executor": getattr(args, "executor", None) or ("process" if args.jobs > 1 else "local"),
+            "executor": getattr(args, "executor", None)
+            or ("process" if args.jobs > 1 else "local"),
             "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "finished": None, "machine": machine_info(), "git_commit": git_commit(),
             "skipped": p.skipped, "previous": (old or {}).get("started")}

@@ -194,7 +194,7 @@ def fidelity_section(paths: Iterable, cache_dir=None,
              "(1 / cost_ratio, as measured when the set was generated), and the share of "
              "instances with ||A_low - A||_inf &lt; c(A), the condition of Cottle's "
              "lemma for a locally Lipschitz solution map. c(A) is estimated by "
-             "multi-start local optimisation (the paper's appendix on computing c(A)); the estimate is "
-             "an upper bound of c(A), so share_err_below_lower also gives the share "
+             "multi-start local optimisation (the paper's appendix on computing c(A)); the "
+             "estimate is an upper bound of c(A), so share_err_below_lower also gives the share "
              "certainly inside, with the lower bound lambda_min(A)/n of c(A).</p>")
     return intro + "\n".join(parts)

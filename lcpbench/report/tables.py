@@ -13,7 +13,7 @@ import pandas as pd
 
 __all__ = ["offline_table", "paper_tables", "failures_table", "work_precision",
            "performance_profile", "online_table", "convergence_curves", "LEVELS",
-           "solved_mask", "offline_runs"]
+           "solved_mask", "offline_runs", "work_precision_display"]
 
 #: Residual levels of the work-precision table (absolute ``||min(x, Ax+b)||``).
 LEVELS = (1e-2, 1e-4, 1e-6, 1e-8)

@@ -278,8 +278,8 @@ def cottle_c(A, *, starts: int | None = 32, random_starts: int = 8, seed: int = 
     Multi-start local optimisation as the paper's appendix "Computing c(A)": by default
     ``min(n, 32)`` eigenvector starts (one per fixed index ``z_i = 1``; ``z_i = -1`` is the
     same problem since ``h(-z) = h(z)``) plus ``random_starts = 8`` random ones, the best
-    results refined by SLSQP (all 40 for ``n <= 60``, fewer above, none above ``n = 250``). Since every
-    candidate is feasible, the value is an upper bound of the true minimum. See
+    results refined by SLSQP (all 40 for ``n <= 60``, fewer above, none above ``n = 250``).
+    Since every candidate is feasible, the value is an upper bound of the true minimum. See
     :func:`cottle_bounds` for the method, the lower bound ``lambda_min / n`` and the
     upper bound ``lambda_min`` (symmetric ``A``).
 
