@@ -134,7 +134,7 @@ def profile_svg(profile: pd.DataFrame, title: str) -> str:
     for s, color in zip(solvers, _colors(len(solvers))):
         label = s
         if total and given.get(s, total) < total:
-            label = f"{s} (run on {given[s]} of {total}; not run on the rest)"
+            label = f"{s} (run on {given[s]} of {total})"
         ax.step(np.log2(profile["tau"]), profile[s], where="post", color=color, label=label)
     ax.set_xlabel("log2 tau (ratio to the best solver)")
     ax.set_ylabel("share of problems solved")

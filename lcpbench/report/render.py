@@ -30,7 +30,8 @@ max-width:1200px;color:#222;padding:0 1em}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;font-size:.85em;margin:.5em 0 1.5em;max-width:100%}
 th,td{border:1px solid #ddd;padding:.25em .5em;text-align:right}
-td{overflow-wrap:anywhere}
+td{overflow-wrap:break-word}
+table.text td{text-align:left}
 th{background:#f3f3f3}td:first-child{text-align:left}
 td.text{text-align:left}
 .fig{margin:1em 0;overflow:hidden}.fig svg{max-width:100%;height:auto}
@@ -49,10 +50,12 @@ def stderr_progress(prefix: str = "lcpbench report") -> Callable[[str], None]:
     return say
 
 
-def _table_html(df: pd.DataFrame) -> str:
+def _table_html(df: pd.DataFrame, text: bool = False) -> str:
+    """An HTML table; ``text`` left-aligns every column (tables of messages)."""
     if df is None or df.empty:
         return '<p class="note">(no rows)</p>'
-    return df.to_html(index=False, escape=True, na_rep="-", border=0)
+    return df.to_html(index=False, escape=True, na_rep="-", border=0,
+                      classes="text" if text else None, float_format=lambda v: f"{v:.3g}")
 
 
 def _write_table(out: Path, name: str, df: pd.DataFrame) -> None:
@@ -122,8 +125,10 @@ def render_report(path, baseline: str = "bb-pgd",
                  "error of w against the reference.</p>")
     parts.append(_table_html(tables.work_precision_display(wp)))
     if not wp.empty:
-        parts.append(fig(plots.work_precision_svg(wp, "emvps", "median E-MVPs (log scale)",
-                                                  "Work-precision (E-MVPs)")))
+        mvp_only = set(res.loc[res["mvp_only"].astype(str).str.lower().eq("true"), "solver"])
+        parts.append(fig(plots.work_precision_svg(wp[wp["solver"].isin(mvp_only)], "emvps",
+                                                  "median E-MVPs (log scale)",
+                                                  "Work-precision (E-MVPs, MVP-only solvers)")))
         parts.append(fig(plots.work_precision_svg(wp, "s", "median seconds (log scale)",
                                                   "Work-precision (seconds)")))
 
@@ -131,7 +136,9 @@ def render_report(path, baseline: str = "bb-pgd",
                  "problems a solver was run on that it solves within a factor tau of the best "
                  "solver; a run that did not meet the tolerance counts as never. A solver "
                  "that was not run on every problem (a multi-fidelity solver on instances "
-                 "without a low fidelity) says so in the legend.</p>")
+                 "without a low fidelity) says in the legend on how many it was run; the "
+                 "problems it was not run on are not counted, neither as solved nor as "
+                 "failed.</p>")
     for metric, label in (("emvps", "E-MVPs (MVP-only solvers)"), ("time_s", "seconds")):
         prof = tables.performance_profile(res, metric)
         _write_table(tdir, f"profile_{metric}", prof)
@@ -143,7 +150,7 @@ def render_report(path, baseline: str = "bb-pgd",
     parts.append(f"<h2>Runs not solved ({len(fails)})</h2><p class='note'>Every run whose "
                  "verified residual missed the tolerance, with the solver's status and "
                  "message.</p>")
-    parts.append(_table_html(fails))
+    parts.append(_table_html(fails, text=True))
 
     online = tables.online_table(res, baseline)
     if not online.empty:
