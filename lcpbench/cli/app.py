@@ -9,6 +9,7 @@ stderr and exits with 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import textwrap
@@ -176,8 +177,9 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    from lcpbench.core.api import run_solver
+    from lcpbench.core.api import requested_lows, run_solver
     from lcpbench.core.context import Budget
+    from lcpbench.core.residuals import make_stop_rule
 
     name, raw = parse_spec(args.problem)
     info = get_problem(name)
@@ -188,10 +190,16 @@ def cmd_solve(args: argparse.Namespace) -> int:
                              f"has {len(lcps)} instance(s), 0..{len(lcps) - 1}")
         lcps = [lcps[args.instance]]
     specs = args.solver or ["mono-pqn"]
-    for spec in specs:            # fail on a bad spec before any work
+    for spec in specs:            # fail on a bad spec or low name before any work
         sname, sraw = parse_spec(spec)
         sinfo = solvers().get(sname)
-        make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+        sparams = make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+        for lcp in lcps:
+            missing = [n for n in requested_lows(dataclasses.asdict(sparams)) if n not in lcp.low]
+            if lcp.low and missing:
+                raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} on "
+                                 f"{lcp.name} (it has: {', '.join(sorted(lcp.low))})")
+    make_stop_rule(args.stop, args.tol)
     budget = Budget(max_emvps=args.max_emvps)
     rows = []
     for lcp in lcps:

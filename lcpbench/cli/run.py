@@ -17,6 +17,7 @@ import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
+from lcpbench.core.api import requested_lows
 from lcpbench.core.context import Budget
 from lcpbench.report.render import render_report, stderr_progress
 from lcpbench.run.runner import (Plan, _problem_key, describe_counts, execute, git_commit,
@@ -120,11 +121,7 @@ def check_plan(p: Plan) -> None:
         Naming the solver, the missing name, the problem and its low fidelities.
     """
     for run in p.runs:
-        wanted = run.solver.params.get("low") or ""
-        names = [wanted] if isinstance(wanted, str) and wanted else []
-        lows = run.solver.params.get("lows")
-        if isinstance(lows, (list, tuple)):
-            names += [str(x) for x in lows]
+        names = requested_lows(run.solver.params)
         if not names:
             continue
         lcp = p.instances[_problem_key(run.problem)][run.instance]

@@ -17,10 +17,22 @@ from lcpbench.core.registry import get_solver, make_params, parse_spec
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
 
-__all__ = ["solve", "run_solver", "DEFAULT_SOLVER"]
+__all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
 #: The solver :func:`solve` uses when none is named.
 DEFAULT_SOLVER = "mono-pqn"
+
+
+def requested_lows(params: dict) -> list[str]:
+    """Low-fidelity operator names a solver's parameters ask for (``low`` and ``lows``).
+
+    An empty ``low`` (the only low operator) asks for no name in particular.
+    """
+    names = [params["low"]] if isinstance(params.get("low"), str) and params["low"] else []
+    lows = params.get("lows")
+    if isinstance(lows, (list, tuple)):
+        names += [str(x) for x in lows]
+    return names
 
 
 def _resolve_solver(solver: str, params: dict):
