@@ -48,8 +48,8 @@ class BBPGDParams:
     Parameters
     ----------
     variant : str
-        Barzilai-Borwein step. ``"bb1"`` (default, the paper's eq.
-        spectralStepSize): ``tau = s's / s'y``; ``"bb2"``: ``tau = s'y / y'y``;
+        Barzilai-Borwein step. ``"bb1"`` (default, the paper's
+        spectral step): ``tau = s's / s'y``; ``"bb2"``: ``tau = s'y / y'y``;
         ``"alternate"``: BB1 on odd and BB2 on even iterations (the alternating
         step of Dai & Fletcher, Numer. Math. 100 (2005), section 4).
         Here ``s = x_k - x_{k-1}`` and ``y = A x_k - A x_{k-1}``.

@@ -1,5 +1,9 @@
 """Bad input gets a clear error that says what was wrong and what to do."""
 
+import builtins
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -107,3 +111,53 @@ def test_unknown_problem_and_bad_problem_parameter():
         make_params("problem random-spd", info.params, {"count": "many"})
     with pytest.raises(ValueError, match="n_min"):
         info.params(n_min=10, n_max=5)
+
+
+# ------------------------------------------------------------------ docs/errors.md, API table
+DOC = Path(__file__).resolve().parents[1] / "docs" / "errors.md"
+
+
+def _api_rows() -> list[tuple[str, str, str]]:
+    """``(call, outcome, message)`` of the API rows of docs/errors.md."""
+    rows = []
+    for line in DOC.read_text().splitlines():
+        if not re.match(r"\| `(lcpbench\.|LCP\(|Operator\()", line):
+            continue
+        cells = [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+        rows.append((cells[0].strip("`"), cells[1].strip("`"), cells[2]))
+    return rows
+
+
+@pytest.mark.parametrize("call, outcome, message", _api_rows())
+def test_documented_api_error(call, outcome, message):
+    env = {"lcpbench": lcpbench, "LCP": LCP, "Operator": Operator, "np": np,
+           "A": A2, "b": B2}
+    documented = message[:-3] if message.endswith("...") else message
+    if outcome.startswith("status="):
+        res = eval(call, env)                     # noqa: S307 - the documented call
+        assert res.status.value == outcome.split("=", 1)[1]
+        assert res.message.startswith(documented), res.message
+        return
+    exc = getattr(builtins, outcome)
+    with pytest.raises(exc) as err:
+        eval(call, env)                           # noqa: S307 - the documented call
+    text = err.value.args[0] if isinstance(err.value, KeyError) else str(err.value)
+    assert text.startswith(documented) if message.endswith("...") else text == documented, text
+
+
+@pytest.mark.parametrize("solver", ["mono-pqn", "bi-pqn", "a-pgd", "minmap-newton", "bb-pgd"])
+def test_operator_nan_is_failed_not_infeasible(solver):
+    rng = np.random.default_rng(1)
+    M = rng.standard_normal((30, 30))
+    A = M @ M.T / 30 + np.eye(30)
+    calls = [0]
+
+    def broken(v):
+        calls[0] += 1
+        return A @ v if calls[0] < 4 else np.full(30, np.nan)
+
+    low = {"l": 1.01 * A} if solver == "bi-pqn" else None
+    res = lcpbench.solve(broken, rng.standard_normal(30), solver=solver, low=low,
+                         low_cost=0.5 if low else None)
+    assert res.status == lcpbench.Status.failed
+    assert res.message == "operator returned non-finite values at product 4"

@@ -1,8 +1,14 @@
 """The ``lcpbench`` command: list, solve, and usage errors (one line, exit 2)."""
 
 import json
+import re
+import shlex
 import subprocess
 import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
 
 import pandas as pd
 import pytest
@@ -98,3 +104,129 @@ def test_console_script_and_version():
     assert lcpbench.__version__ in out.stdout
     bare = subprocess.run([sys.executable, "-m", "lcpbench.cli"], capture_output=True, text=True)
     assert bare.returncode == 2 and "COMMAND" in bare.stdout
+
+
+# ------------------------------------------------------------------ docs/errors.md, CLI table
+DOC = Path(__file__).resolve().parents[1] / "docs" / "errors.md"
+
+
+def _doc_rows(prefix: str) -> list[tuple[str, str, str]]:
+    """``(input, outcome, message)`` of the docs/errors.md table rows whose input starts so."""
+    rows = []
+    for line in DOC.read_text().splitlines():
+        if not line.startswith("| `" + prefix):
+            continue
+        cells = [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+        rows.append((cells[0].strip("`"), cells[1].strip("`"), cells[2]))
+    return rows
+
+
+def _matches(documented: str, actual: str) -> bool:
+    if documented.endswith("..."):
+        return actual.startswith(documented[:-3])
+    return actual == documented
+
+
+@pytest.fixture(scope="module")
+def error_folder(tmp_path_factory):
+    """The folder the documented commands run in: a file, bad files, a run store."""
+    from lcpbench.problems.stored import shipped_sets
+
+    root = tmp_path_factory.mktemp("errors")
+    (root / "afile").write_text("not a folder\n")
+    (root / "bad.toml").write_text("[[solver]\nname = 'bb-pgd'\n")
+    data = shipped_sets()["lattice-bim-m3"].read_bytes()
+    (root / "trunc.h5").write_bytes(data[:len(data) // 3])
+    code = main(["run", "--problem", "tiny", "--solver", "bb-pgd", "--out", str(root / "store"),
+                 "--quiet", "--no-report"])
+    assert code == 0
+    return root
+
+
+def test_errors_doc_lists_at_least_25_bad_inputs():
+    assert len(_doc_rows("lcpbench ")) + len(_doc_rows("lcpbench.")) + \
+        len(_doc_rows("LCP(")) + len(_doc_rows("Operator(")) >= 25
+
+
+@pytest.mark.parametrize("command, code, message", _doc_rows("lcpbench "))
+def test_documented_cli_error(command, code, message, error_folder, monkeypatch, capsys):
+    monkeypatch.chdir(error_folder)
+    argv = shlex.split(command)[1:]
+    outs = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--out"]
+    fresh = [o for o in outs if not Path(o).exists()]
+    assert main(argv) == int(code)
+    err = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in err if ": error:" in line]
+    assert len(errors) == 1 and "Traceback" not in "\n".join(err), err
+    assert _matches(message, errors[0]), (message, errors[0])
+    for o in fresh:                               # nothing left behind in --out
+        assert not Path(o).exists(), o
+
+
+def test_dask_executor_without_dask_is_refused_up_front(tmp_path, monkeypatch, capsys):
+    import importlib.util
+
+    import lcpbench.cli.run as run_mod
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(run_mod.importlib.util, "find_spec",
+                        lambda name, *a: None if name == "distributed" else real(name, *a))
+    out = tmp_path / "r"
+    assert main(["run", "--problem", "tiny", "--executor", "dask", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ('lcpbench run: error: --executor dask needs dask.distributed, which is not '
+                   'installed: pip install -e ".[dask]" (or use --executor process)')
+    assert not out.exists()
+
+
+def test_list_shows_whole_parameter_docs_in_plain_words(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    # the second and later lines of a parameter's docstring are shown, not only the first
+    assert "Dai & Fletcher" in " ".join(out.split())
+    # no LaTeX labels of the paper such as "eq. pqnSubproblem" or "Proposition prop-nnProx"
+    assert not re.search(r"\b(eq\.|lemma|[Aa]lgorithm|Proposition) [a-z]+[A-Z-]", out), \
+        re.search(r".{40}\b(eq\.|lemma|[Aa]lgorithm|Proposition) [a-z]+[A-Z-].{20}", out)
+
+
+# ------------------------------------------------------------------ README
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_readme_commands_and_pointers():
+    text = README.read_text()
+    assert 'python -m pytest -q -m "not browser and not slow"' in text
+    assert "../shared" not in text.split("## Layout")[0]
+    assert not re.search(r"(/work/|/home/|/root/)", text)
+
+
+def test_readme_snippet_gives_the_same_emvps_on_every_run():
+    code = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((40, 40))
+    A = M @ M.T / 40 + np.eye(40)
+    E = 1e-3 * rng.standard_normal((40, 40))
+    env0 = {"A": A, "A_low": A + (E + E.T) / 2, "b": rng.standard_normal(40),
+            "x_prev": None, "state": None}
+    emvps = []
+    for _ in range(3):
+        env = dict(env0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")          # declared costs: no wall-clock warning
+            exec(code, env)
+        res = env["res"]
+        assert res.emvps == pytest.approx(res.mvps + 0.1 * res.lofi_mvps["coarse"])
+        emvps.append(res.emvps)
+    assert emvps[0] == emvps[1] == emvps[2]
+
+
+def test_solve_warns_when_emvps_are_priced_by_the_clock():
+    A = np.array([[2.0, 1.0], [1.0, 2.0]])
+    b = np.array([-1.0, 1.0])
+    with pytest.warns(UserWarning, match="wall time"):
+        lcpbench.solve(A, b, solver="bi-pqn", low={"c": 1.01 * A})
+    res = lcpbench.solve(lambda v: A @ v, b)                  # shape taken from b
+    assert res.solved and res.mvps > 0
+    res = lcpbench.solve(lambda v: A @ v, b, shape=(2, 2), solver="bi-pqn",
+                         low={"c": lambda v: 1.01 * A @ v}, low_cost=0.25)
+    assert res.emvps == pytest.approx(res.mvps + 0.25 * res.lofi_mvps["c"])

@@ -10,17 +10,9 @@ import pytest
 from lcpbench.sets import SetWriter
 
 from lcpbench import LCP, Operator
-from lcpbench.workflows.fidelity import (
-    TABLE_COLUMNS,
-    cottle_bounds,
-    cottle_c,
-    cottle_heatmap_svg,
-    fidelity_section,
-    fidelity_table,
-    heatmap_svg,
-    heatmaps,
-    stored_set_specs,
-)
+from lcpbench.report.fidelity import cottle_heatmap_svg, fidelity_section, heatmap_svg, heatmaps
+from lcpbench.workflows.cottle import cottle_bounds, cottle_c
+from lcpbench.workflows.fidelity import TABLE_COLUMNS, fidelity_table, stored_set_specs
 
 N = 20
 # Diagonal positive high-fidelity matrices: c(A) = min_i A_ii exactly.
@@ -243,8 +235,9 @@ def test_fidelity_section_is_empty_without_low_fidelities(tmp_path) -> None:
 
 
 def test_cottle_c_restores_blas_threads() -> None:
-    from lcpbench.workflows.fidelity import _openblas_controls
+    from threadpoolctl import threadpool_info
 
-    before = [get() for get, _ in _openblas_controls()]
+    before = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
     cottle_c(np.diag([2.0, 1.0, 3.0]) + 0.1)
-    assert [get() for get, _ in _openblas_controls()] == before
+    assert [lib["num_threads"] for lib in threadpool_info()
+            if lib["user_api"] == "blas"] == before

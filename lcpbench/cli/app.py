@@ -9,8 +9,10 @@ stderr and exits with 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
+import textwrap
 from typing import Optional, Sequence
 
 import numpy as np
@@ -20,7 +22,7 @@ from lcpbench.workflows.check import add_check_parser
 from lcpbench.workflows.generate import add_generate_parser
 from lcpbench.core.defaults import (DEFAULT_SOLVER, EXAMPLE_PROBLEM, EXAMPLE_SCENE,
                                      SIMULATE_SOLVER)
-from lcpbench.core.registry import get_problem, problems, solvers
+from lcpbench.core.registry import get_problem, problems, scenes, solvers
 from lcpbench.core.specs import describe_params, make_params, parse_spec
 from lcpbench.core.residuals import STOP_RULES
 from lcpbench.cli.run import add_report_parser, add_run_parser
@@ -30,10 +32,11 @@ __all__ = ["main", "build_parser"]
 
 
 def _add_list_parser(sub) -> None:
-    p = sub.add_parser("list", help="registered solvers and problem families with parameters",
-                       description="List every registered solver and problem family, with "
-                                   "their parameters, types, defaults and documentation.")
-    p.add_argument("what", nargs="?", choices=("solvers", "problems", "all"), default="all")
+    p = sub.add_parser("list", help="registered solvers, problem families and scenes",
+                       description="List every registered solver, problem family and scene, "
+                                   "with their parameters, types, defaults and documentation.")
+    p.add_argument("what", nargs="?", choices=("solvers", "problems", "scenes", "all"),
+                   default="all")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--brief", action="store_true", help="names and summaries only")
     p.set_defaults(func=cmd_list)
@@ -121,7 +124,7 @@ def _entry(info, kind: str) -> dict:
     if kind == "solver":
         out.update(needs_dense=info.needs_dense, reference=info.reference,
                    multifidelity=info.multifidelity)
-    else:
+    elif kind == "problem":
         out["default"] = info.default
     return out
 
@@ -143,7 +146,7 @@ def _tags(e: dict) -> str:
             tags.append("needs dense A")
         if e["multifidelity"]:
             tags.append("multi-fidelity")
-    elif e["default"]:
+    elif e.get("default"):
         tags.append("default set")
     return f"  [{', '.join(tags)}]" if tags else ""
 
@@ -155,6 +158,8 @@ def cmd_list(args: argparse.Namespace) -> int:
                     if i.listed]
     if args.what in ("problems", "all"):
         entries += [_entry(i, "problem") for _, i in sorted(problems().items())]
+    if args.what in ("scenes", "all"):
+        entries += [_entry(i, "scene") for _, i in sorted(scenes().items())]
     if args.json:
         print(json.dumps(entries, indent=2, default=str))
         return 0
@@ -162,13 +167,17 @@ def cmd_list(args: argparse.Namespace) -> int:
     for e in entries:
         if e["kind"] != kind:
             kind = e["kind"]
-            print(f"\n{'Solvers' if kind == 'solver' else 'Problem families'}:")
+            title = {"solver": "Solvers", "problem": "Problem families",
+                     "scene": "Scenes (lcpbench simulate / generate --scene)"}[kind]
+            print(f"\n{title}:")
         print(f"  {e['name']:<16} {e['summary']}{_tags(e)}")
         if args.brief:
             continue
         for prm in e["params"]:
-            doc = f"  {prm['doc']}" if prm["doc"] else ""
-            print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}{doc}")
+            print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}")
+            if prm["doc"]:
+                print(textwrap.fill(prm["doc"], width=100, initial_indent=" " * 10,
+                                    subsequent_indent=" " * 10, break_on_hyphens=False))
     print("\nUse as NAME:key=value,...  e.g.  bi-pqn:low=p4,inner_rtol=0.01")
     return 0
 
@@ -177,8 +186,9 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    from lcpbench.core.api import run_solver
+    from lcpbench.core.api import requested_lows, run_solver
     from lcpbench.core.context import Budget
+    from lcpbench.core.residuals import make_stop_rule
 
     name, raw = parse_spec(args.problem)
     info = get_problem(name)
@@ -189,10 +199,16 @@ def cmd_solve(args: argparse.Namespace) -> int:
                              f"has {len(lcps)} instance(s), 0..{len(lcps) - 1}")
         lcps = [lcps[args.instance]]
     specs = args.solver or [DEFAULT_SOLVER]
-    for spec in specs:            # fail on a bad spec before any work
+    for spec in specs:            # fail on a bad spec or low name before any work
         sname, sraw = parse_spec(spec)
         sinfo = solvers().get(sname)
-        make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+        sparams = make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+        for lcp in lcps:
+            missing = [n for n in requested_lows(dataclasses.asdict(sparams)) if n not in lcp.low]
+            if lcp.low and missing:
+                raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} on "
+                                 f"{lcp.name} (it has: {', '.join(sorted(lcp.low))})")
+    make_stop_rule(args.stop, args.tol)
     budget = Budget(max_emvps=args.max_emvps)
     rows = []
     for lcp in lcps:
@@ -284,8 +300,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("lcpbench: interrupted; rows already written are kept (re-run to resume)",
               file=sys.stderr)
         return 130
-    except (KeyError, ValueError, TypeError, FileNotFoundError, StoreLocked) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        print(f"lcpbench {args.command}: error: {msg}", file=sys.stderr)
+    except _user_errors() as exc:
+        print(f"lcpbench {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _user_errors() -> tuple:
+    """Exceptions that mean bad input (a spec, a value, a file): one line and exit 2."""
+    from lcpbench.sets import StoredSetError
+
+    return (KeyError, ValueError, TypeError, OSError, ImportError, StoreLocked, StoredSetError)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line (a missing module gets the install hint)."""
+    msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+    if isinstance(exc, ImportError) and getattr(exc, "name", None):
+        msg = f"{msg}; install it (pip install -e \".[test]\" has every optional dependency)"
+    elif isinstance(exc, OSError) and getattr(exc, "filename", None) and exc.strerror:
+        msg = f"{exc.filename}: {exc.strerror}"
+    return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
 

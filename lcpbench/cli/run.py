@@ -1,21 +1,35 @@
-"""The ``lcpbench run`` and ``lcpbench report`` subcommands."""
+"""The ``lcpbench run`` and ``lcpbench report`` subcommands.
+
+Everything a user can get wrong is checked before the run store is created:
+the sweep's values and budgets, every solver and problem spec, the instances
+(a missing or damaged stored set), the low-fidelity names a multi-fidelity
+solver asks for, the executor and the ``--out`` folder. A bad input therefore
+leaves nothing behind in ``--out``.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import math
+import os
 import sys
 from datetime import datetime
 from pathlib import Path
 
+from lcpbench.core.api import requested_lows
+from lcpbench.core.context import Budget
 from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.core.residuals import STOP_RULES
-from lcpbench.report.render import render_report
-from lcpbench.run.runner import describe_counts, execute, git_commit, machine_info, plan
+from lcpbench.report.render import render_report, stderr_progress
+from lcpbench.run.runner import (Plan, _problem_key, describe_counts, execute, git_commit,
+                                  machine_info, plan)
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep, load_config
 from lcpbench.core.clock import utc_now
 
-__all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep"]
+__all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep",
+           "check_plan", "check_out_dir"]
 
 
 def add_run_parser(sub) -> None:
@@ -39,7 +53,7 @@ def add_run_parser(sub) -> None:
     p.add_argument("--max-emvps", type=float, default=None, help="E-MVP budget per run")
     p.add_argument("--out", metavar="DIR", help="run store folder (default: a new folder "
                                                  "under reports/)")
-    p.add_argument("--jobs", type=int, default=1, help="parallel worker processes")
+    p.add_argument("--jobs", type=int, default=1, help="parallel worker processes (>= 1)")
     p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                    help="per-run wall-time limit; a run over it is recorded as timeout")
     p.add_argument("--force", action="store_true",
@@ -50,10 +64,14 @@ def add_run_parser(sub) -> None:
 
 
 def add_report_parser(sub) -> None:
-    p = sub.add_parser("report", help="render DIR/report.html from a run store")
+    p = sub.add_parser("report", help="render DIR/report.html from a run store",
+                       description="Render DIR/report.html and DIR/tables/ from a run store. "
+                                   "The fidelity study of stored sets is cached in "
+                                   "DIR/cache/, so re-rendering takes seconds.")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--baseline", default=BASELINE_SOLVER,
-                   help="solver the online speedups are measured against")
+                   help="solver the offline ratios and online speedups are measured against")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_report)
 
 
@@ -73,34 +91,89 @@ def build_sweep(args: argparse.Namespace) -> Sweep:
         sv, pb = default_sweep()
         cfg.setdefault("solvers", sv)
         cfg.setdefault("problems", pb)
-    return Sweep(**cfg)
+    sweep = Sweep(**cfg)
+    if not math.isfinite(float(sweep.tol)):
+        raise ValueError(f"tol must be a finite number > 0, got {sweep.tol}")
+    Budget(max_emvps=sweep.max_emvps)          # the budget's own check, before any run
+    return sweep
+
+
+def check_out_dir(out: Path, flag: str = "--out") -> None:
+    """Refuse an ``--out`` that is a file or cannot be created or written.
+
+    Raises
+    ------
+    ValueError
+        With one line naming the folder and what to do.
+    """
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{flag} {out} exists and is not a folder; choose another {flag}")
+    parent = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise ValueError(f"{flag} {out}: {parent} is not a folder; choose another {flag}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {out}: {parent} is not writable; choose another {flag}")
+
+
+def check_plan(p: Plan) -> None:
+    """Low-fidelity names a solver asks for must exist on the instances it runs on.
+
+    Raises
+    ------
+    ValueError
+        Naming the solver, the missing name, the problem and its low fidelities.
+    """
+    for run in p.runs:
+        names = requested_lows(run.solver.params)
+        if not names:
+            continue
+        lcp = p.instances[_problem_key(run.problem)][run.instance]
+        missing = [n for n in names if n not in lcp.low]
+        if missing:
+            raise ValueError(f"solver {run.solver.label!r}: no low fidelity {missing[0]!r} on "
+                             f"{run.problem.label} (it has: {', '.join(sorted(lcp.low))}); "
+                             "see `lcpbench list problems`")
+
+
+def _check_executor(args: argparse.Namespace) -> None:
+    if args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs}: the number of worker processes must be >= 1")
+    if getattr(args, "executor", None) == "dask" and \
+            importlib.util.find_spec("distributed") is None:
+        raise ValueError("--executor dask needs dask.distributed, which is not installed: "
+                         "pip install -e \".[dask]\" (or use --executor process)")
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     sweep = build_sweep(args)
+    _check_executor(args)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("reports") / f"run-{stamp}"
+    check_out_dir(out)
+    if not args.quiet:
+        print(f"lcpbench run: planning {len(sweep.solvers)} solver spec(s) x "
+              f"{len(sweep.problems)} problem spec(s) into {out}", file=sys.stderr)
+    p = plan(sweep)
+    check_plan(p)
     store = RunStore(out)
     with store.lock():
-        return _run_locked(args, sweep, store, out)
+        return _run_locked(args, sweep, p, store, out)
 
 
-def _run_locked(args: argparse.Namespace, sweep: Sweep, store: RunStore, out: Path) -> int:
+def _run_locked(args: argparse.Namespace, sweep: Sweep, p: Plan, store: RunStore,
+                out: Path) -> int:
     old = store.read_meta()
     config = sweep.config()
     if old is not None and old.get("config") != config and not args.force:
         raise ValueError(
-            f"{out} holds a sweep with a different configuration:\n  stored:  "
-            f"{old.get('config')}\n  now:     {config}\nchoose another --out, or pass --force "
+            f"{out} holds a sweep with a different configuration (stored: "
+            f"{old.get('config')}; now: {config}); choose another --out, or pass --force "
             "to add this sweep's rows to it (rows are keyed by run, nothing is overwritten)")
     quiet = args.quiet
-    if not quiet:
-        print(f"lcpbench run: planning {len(sweep.solvers)} solver spec(s) x "
-              f"{len(sweep.problems)} problem spec(s) into {out}", file=sys.stderr)
-    p = plan(sweep)
     meta = {"argv": ["lcpbench"] + list(args.argv), "config": config,
             "timeout": sweep.timeout, "jobs": args.jobs,
-            "executor": getattr(args, "executor", None) or ("process" if args.jobs > 1 else "local"),
+            "executor": getattr(args, "executor", None)
+            or ("process" if args.jobs > 1 else "local"),
             "started": utc_now(),
             "finished": None, "machine": machine_info(), "git_commit": git_commit(),
             "skipped": p.skipped, "previous": (old or {}).get("started")}
@@ -116,7 +189,7 @@ def _run_locked(args: argparse.Namespace, sweep: Sweep, store: RunStore, out: Pa
         print(f"lcpbench run: skipped {len(p.skipped)} multi-fidelity run(s) on instances "
               "without low-fidelity operators (listed in meta.json)", file=sys.stderr)
     if not args.no_report:
-        html = render_report(out)
+        html = render_report(out, progress=None if quiet else stderr_progress())
         print(f"report: {html}")
     else:
         print(f"results: {out / 'results.csv'}")
@@ -124,6 +197,11 @@ def _run_locked(args: argparse.Namespace, sweep: Sweep, store: RunStore, out: Pa
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    html = render_report(args.dir, baseline=args.baseline)
+    folder = Path(args.dir)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"{folder} is a file, not a run store folder; give the DIR that "
+                         "`lcpbench run --out DIR` wrote")
+    html = render_report(folder, baseline=args.baseline,
+                         progress=None if args.quiet else stderr_progress())
     print(f"report: {html}")
     return 0

@@ -3,23 +3,38 @@
 from __future__ import annotations
 
 import traceback
+import warnings
 from typing import Any, Callable, Optional, Union
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator
 
 from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.deadline import Deadline
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import BudgetExhausted
+from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
 from lcpbench.core.registry import get_solver
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
 
-__all__ = ["solve", "run_solver", "DEFAULT_SOLVER"]
+__all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
+
+
+def requested_lows(params: dict) -> list[str]:
+    """Low-fidelity operator names a solver's parameters ask for (``low`` and ``lows``).
+
+    An empty ``low`` (the only low operator) asks for no name in particular.
+    """
+    names = [params["low"]] if isinstance(params.get("low"), str) and params["low"] else []
+    lows = params.get("lows")
+    if isinstance(lows, (list, tuple)):
+        names += [str(x) for x in lows]
+    return names
 
 
 def _resolve_solver(solver: str, params: dict):
@@ -126,6 +141,8 @@ def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
     except BudgetExhausted as exc:
         return _close_at_last(ctx, Status.timeout if exc.kind == "time" else Status.budget,
                               str(exc))
+    except NonFiniteProduct as exc:    # a broken operator, not an infeasible problem
+        return _close_at_last(ctx, Status.failed, str(exc))
     except StopSolver as exc:
         return _close_at_last(ctx, ctx.status or Status.max_iter, str(exc) or ctx.message)
     except Exception as exc:  # the sweep must never die for one solver
@@ -164,6 +181,11 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule
         if res.status != Status.failed:
             res.status = Status.diverged
             res.message = res.message or "non-finite solution"
+    bad = [op for op in run.operators().values() if op.nonfinite_at is not None]
+    if bad:          # even when the solver caught the error and blamed the problem
+        res.status = Status.failed
+        res.message = (f"operator returned non-finite values at product {bad[0].nonfinite_at}"
+                       + ("" if bad[0].name == "high" else f" (operator {bad[0].name!r})"))
     res.x = x
     try:
         res.emvps = float(run.emvps())
@@ -196,6 +218,7 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule
 def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
           stop: Union[str, StopRule] = "paper", x0=None, max_emvps: float = 5000.0,
           max_seconds: Optional[float] = None, max_iter: int = 5000, low: Optional[dict] = None,
+          low_cost: Union[float, dict, None] = None, shape: Optional[tuple] = None,
           state: Any = None, callback: Optional[Callable] = None, **params) -> SolveResult:
     """Solve the LCP ``0 <= x _|_ A x + b >= 0``.
 
@@ -211,7 +234,7 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     tol : float
         Tolerance of the stop rule.
     stop : {"paper", "paper-code", "kkt"} or StopRule
-        ``paper``: absolute or relative KKT error below tol (eq. kkt-error);
+        ``paper``: absolute or relative KKT error below tol (the paper's rule);
         ``paper-code``: ``||min(x, Ax+b)||^2 < tol`` (the authors' released code);
         ``kkt``: ``||min(x, Ax+b)|| <= tol (1 + ||b||)``.
     x0 : array_like, optional
@@ -219,6 +242,16 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     max_emvps, max_seconds, max_iter : budget of the solve.
     low : dict, optional
         Low-fidelity operators by name (only when ``A_or_lcp`` is a matrix).
+    low_cost : float or dict, optional
+        Cost of one low-fidelity product in high-fidelity products (``0.1``: ten low
+        products cost one high product), one number for every low operator or a dict
+        by name. E-MVPs are then ``high MVPs + sum(low_cost * low MVPs)``, the same on
+        every run. Without it (and without ``lcpbench.Operator(..., cost=...)``) the
+        costs are the measured wall time per product, which varies between runs; a
+        warning says so when low-fidelity products were used.
+    shape : tuple, optional
+        ``(n, n)`` of a callable ``A`` (and callable low operators); default
+        ``(len(b), len(b))``.
     state : object, optional
         ``result.state`` of the previous solve (quasi-Newton memory for time
         stepping; solvers that keep none ignore it).
@@ -249,13 +282,56 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     True
     """
     if isinstance(A_or_lcp, LCP):
-        if b is not None or low is not None:
-            raise ValueError("pass b and low inside the LCP, not beside it")
+        if b is not None or low is not None or low_cost is not None or shape is not None:
+            raise ValueError("pass b, low and their costs inside the LCP, not beside it")
         lcp = A_or_lcp
     else:
         if b is None:
             raise ValueError("b is required when A is given as a matrix or operator")
-        lcp = LCP(A_or_lcp, b, low=low or {})
+        n = int(np.size(b))
+        A, lows = _with_costs(_operator(A_or_lcp, "high", shape, n),
+                              {k: _operator(v, k, shape, n) for k, v in (low or {}).items()},
+                              low_cost)
+        lcp = LCP(A, b, low=lows)
     budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds, max_iter=max_iter)
-    return run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, x0=x0, state=state,
-                      callback=callback, params=params)
+    res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, x0=x0, state=state,
+                     callback=callback, params=params)
+    clocked = [name for name, op in [("high", lcp.A), *lcp.low.items()]
+               if op.declared_cost is None]
+    if clocked and any(res.lofi_mvps.values()):
+        warnings.warn(f"E-MVPs are priced by the measured wall time per product of "
+                      f"{', '.join(clocked)} (no declared cost), so they vary between "
+                      "identical solves; pass low_cost= (or lcpbench.Operator(A, cost=...))",
+                      UserWarning, stacklevel=2)
+    return res
+
+
+def _operator(M, name: str, shape: Optional[tuple], n: int):
+    """``M`` as given, or a counted :class:`Operator` when it is a bare callable."""
+    if callable(M) and not isinstance(M, (LinearOperator, np.ndarray)) and not sp.issparse(M):
+        return Operator(M, shape=tuple(shape) if shape is not None else (n, n), name=name)
+    if shape is not None and tuple(getattr(M, "shape", ())) != tuple(shape):
+        raise ValueError(f"shape={tuple(shape)} does not match {name} operator's shape "
+                         f"{getattr(M, 'shape', None)}; shape= is for callables")
+    return M
+
+
+def _with_costs(A, lows: dict, low_cost) -> tuple:
+    """Declare costs from ``low_cost`` (high = 1 unless ``A`` declares one)."""
+    if low_cost is None:
+        return A, lows
+    if not lows:
+        raise ValueError("low_cost= given without low= operators; pass low={'name': A_low}")
+    costs = dict(low_cost) if isinstance(low_cost, dict) else {k: low_cost for k in lows}
+    unknown, missing = sorted(set(costs) - set(lows)), sorted(set(lows) - set(costs))
+    if unknown or missing:
+        raise ValueError(f"low_cost names {unknown or missing} but low has {sorted(lows)}; "
+                         "give one cost per low operator, or one number for all")
+    for k, c in costs.items():
+        if not (isinstance(c, (int, float, np.floating, np.integer)) and np.isfinite(c)
+                and c > 0):
+            raise ValueError(f"low_cost[{k!r}] = {c!r}: a cost must be a positive number "
+                             "(low products per high product, e.g. 0.1)")
+    high = A.declared_cost if isinstance(A, Operator) and A.declared_cost else 1.0
+    A = Operator(A, cost=high, name="high")
+    return A, {k: Operator(v, cost=float(costs[k]) * high, name=k) for k, v in lows.items()}

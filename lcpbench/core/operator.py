@@ -24,8 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-__all__ = ["Operator", "BudgetExhausted", "OperatorError", "apply_uncounted", "as_operator",
-           "measure_cost"]
+__all__ = ["Operator", "BudgetExhausted", "OperatorError", "NonFiniteProduct", "apply_uncounted",
+           "as_operator", "measure_cost"]
 
 
 class BudgetExhausted(RuntimeError):
@@ -47,6 +47,14 @@ class OperatorError(RuntimeError):
 
     The message names the operator (``"high"`` or the low fidelity's name) and
     repeats the original error, which the framework records in a ``failed`` result.
+    """
+
+
+class NonFiniteProduct(ArithmeticError):
+    """Raised when an operator returns NaN or Inf for a finite input.
+
+    The framework closes the solve with status ``failed`` and this message, so a
+    broken operator is never reported as an infeasible or indefinite problem.
     """
 
 
@@ -149,6 +157,7 @@ class Operator(LinearOperator):
         self.count = 0
         self.seconds = 0.0
         self.calls = 0
+        self.nonfinite_at: Optional[int] = None
         self._guard: Optional[Callable[["Operator", int], None]] = None
 
     # ------------------------------------------------------------------ counting
@@ -166,6 +175,11 @@ class Operator(LinearOperator):
         self.seconds += time.perf_counter() - t0
         self.count += k
         self.calls += 1
+        if not np.all(np.isfinite(Y)) and np.all(np.isfinite(X)):
+            self.nonfinite_at = self.nonfinite_at or self.count
+            raise NonFiniteProduct(f"operator returned non-finite values at product "
+                                   f"{self.nonfinite_at}"
+                                   + ("" if self.name == "high" else f" (operator {self.name!r})"))
         if X.ndim == 1:
             self._last = (X.copy(), Y.copy())
         return Y

@@ -155,5 +155,5 @@ def make_stop_rule(stop: Union[str, StopRule], tol: float) -> StopRule:
     if stop == "kkt":
         return StopRule("kkt", tol=float(tol), atol=float(tol), rtol=float(tol))
     raise ValueError(f"unknown stop rule {stop!r}; use 'paper' (abs or relative KKT below tol, "
-                     "eq. kkt-error), 'paper-code' (||min(x,w)||^2 < tol, the authors' code) "
+                     "the paper's KKT error), 'paper-code' (||min(x,w)||^2 < tol, the authors' code) "
                      "or 'kkt' (||min(x,w)|| <= tol (1 + ||b||))")

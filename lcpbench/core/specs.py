@@ -269,13 +269,16 @@ def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
     for f in dataclasses.fields(cls):
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         tp = hints[f.name]
-        tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+        if typing.get_origin(tp) is typing.Literal:
+            tname = "one of " + "|".join(str(c) for c in typing.get_args(tp))
+        else:
+            tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
         out.append((f.name, tname, default, docs.get(f.name, "")))
     return out
 
 
 def _param_docs(doc: str) -> dict[str, str]:
-    """Parse a numpy-style ``Parameters`` section into ``{name: first line}``."""
+    """Parse a numpy-style ``Parameters`` section into ``{name: whole description}``."""
     lines = doc.splitlines()
     out: dict[str, str] = {}
     in_params = False
@@ -300,6 +303,5 @@ def _param_docs(doc: str) -> dict[str, str]:
                 out.setdefault(n, "")
         elif s and cur:
             for n in cur:
-                if not out[n]:
-                    out[n] = s
+                out[n] = f"{out[n]} {s}".strip()
     return out

@@ -45,9 +45,11 @@ import numpy as np
 from lcpbench import __version__
 from lcpbench.core.context import Budget
 from lcpbench.core.operator import apply_uncounted
-from lcpbench.core.registry import solvers, stored_sets
-from lcpbench.run.sweep import expand, per_low
 from lcpbench.core.clock import utc_now
+from lcpbench.core.registry import get_solver, solvers, stored_sets
+from lcpbench.core.residuals import make_stop_rule
+from lcpbench.core.specs import make_params, parse_spec
+from lcpbench.run.sweep import expand, per_low
 
 __all__ = ["check", "CheckRow", "default_specs", "load_baselines", "write_baselines",
            "resolve_sets", "format_table", "add_check_parser",
@@ -247,6 +249,11 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     from lcpbench.core.api import run_solver
 
     path = Path(baseline) if baseline else default_baseline()
+    make_stop_rule("paper", tol)                # bad values before any set is read
+    Budget(max_emvps=max_emvps)
+    for spec in solver_specs or ():
+        name, raw = parse_spec(spec)
+        make_params(name, get_solver(name).params, raw)
     data = load_baselines(path)
     chosen = resolve_sets(sets)
     loaded = {name: read_set(p) for name, p in chosen.items()}

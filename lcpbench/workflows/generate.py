@@ -58,7 +58,7 @@ from lcpbench.sets import SetWriter, StoredSetError, instance_ids, read_instance
 from lcpbench.core.residuals import STOP_RULES
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
-           "add_generate_parser", "cmd_generate", "GenerateSummary"]
+           "portable_command", "add_generate_parser", "cmd_generate", "GenerateSummary"]
 
 _P_LIST = re.compile(r"^p\s*=\s*(.+)$")
 
@@ -217,6 +217,22 @@ def _check_resume(f, path: Path, config: dict) -> None:
                              "--eps, or write to another --out")
 
 
+def portable_command(argv: Sequence[str]) -> str:
+    """The command line as stored in a set's ``generator``, without machine-specific paths.
+
+    Every absolute path (``--out /home/me/sets/x.h5``, ``--baseline=/tmp/b.json``) is
+    replaced by its file name, so the command reads the same on every machine.
+    """
+    out = []
+    for arg in argv:
+        key, eq, value = arg.partition("=") if arg.startswith("--") and "=" in arg \
+            else ("", "", arg)
+        if Path(value).is_absolute():
+            value = Path(value).name
+        out.append(f"{key}={value}" if eq else value)
+    return shlex.join(out)
+
+
 def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, Path], *,
              solver: str = DEFAULT_SOLVER, lows: Sequence[str] = (), name: Optional[str] = None,
              title: Optional[str] = None, description: Optional[str] = None,
@@ -286,10 +302,10 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     name = name or out.stem
     params_json = json.dumps(dataclasses.asdict(base), sort_keys=True, default=str)
     config = {"scene_params": params_json, "solver": solver, "lows": json.dumps(lows)}
-    generator = shlex.join(argv) if argv else (
+    generator = portable_command(argv) if argv else (
         f"lcpbench generate --scene {shlex.quote(scene_spec)} --solver {shlex.quote(solver)} "
         f"--steps {_steps_text(wanted)} " + "".join(f"--low {x} " for x in lows)
-        + f"--name {shlex.quote(name)} --out {shlex.quote(str(out))}")
+        + f"--name {shlex.quote(name)} --out {shlex.quote(out.name)}")
     title = title or f"{name}: dense LCPs of {scene_spec}, steps {_steps_text(wanted)}"
     description = description or (
         f"Scene {scene_spec} ({scene.M} particles) simulated with "
@@ -460,6 +476,9 @@ def cmd_generate(args) -> int:
         if args.out is None and not args.name:
             raise ValueError("give --out FILE.h5 or --name NAME (written to the cache folder)")
         out = Path(args.out) if args.out else default_cache_dir() / f"{args.name}.h5"
+        if out.is_dir():
+            raise ValueError(f"--out {out} is a folder; give the set's file, e.g. "
+                             f"{out / 'my-set.h5'}")
         summary = generate(args.scene, args.steps, out, solver=args.solver, lows=lows,
                            name=args.name, title=args.title, description=args.description,
                            tol=args.tol, stop=args.stop, max_emvps=args.max_emvps,
@@ -467,7 +486,7 @@ def cmd_generate(args) -> int:
                            argv=["lcpbench"] + list(getattr(args, "argv", ["generate"])),
                            compression=args.compression)
     except StoredSetError as exc:
-        print(f"lcpbench generate: error: {exc}", file=sys.stderr)
+        print(f"lcpbench generate: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     print(f"{summary.path}: wrote {len(summary.written)} instance(s), kept "
           f"{len(summary.kept)}, simulated {summary.simulated} step(s) in "

@@ -42,6 +42,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.api import requested_lows
 from lcpbench.core.context import Budget
 from lcpbench.core.registry import get_solver
 from lcpbench.core.specs import make_params, parse_spec
@@ -62,11 +63,15 @@ class Interrupted(RuntimeError):
 DEFAULT_OVERLAP_TOL = 1e-2
 
 
-def _check_solver(spec: str, has_low: bool, scene_spec: str):
+def _check_solver(spec: str, lows: Sequence[str], scene_spec: str):
     name, raw = parse_spec(spec)
     info = get_solver(name)
-    make_params(name, info.params, raw)
-    if info.multifidelity and not has_low:
+    params = make_params(name, info.params, raw)
+    missing = [n for n in requested_lows(dataclasses.asdict(params)) if n not in lows]
+    if lows and missing:
+        raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} in scene "
+                         f"{scene_spec!r} (it has: {', '.join(lows)})")
+    if info.multifidelity and not lows:
         raise ValueError(f"solver {spec!r} needs low-fidelity operators but scene {scene_spec!r} "
                          "has none; add low=[...] to the scene, e.g. "
                          f"{scene_spec.split(':')[0]}:...,low=[self]")
@@ -159,7 +164,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     scene_spec = str(scene_spec).strip()
     probe = make_scene(scene_spec)                 # validates the scene before any work
     scene_name = parse_spec(scene_spec)[0]
-    infos = {s: _check_solver(s, bool(probe.params.low), scene_spec) for s in specs}
+    infos = {s: _check_solver(s, [str(x) for x in probe.params.low], scene_spec) for s in specs}
 
     store = RunStore(out_dir)
     with store.lock():

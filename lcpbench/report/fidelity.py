@@ -1,0 +1,200 @@
+"""Figures and report section of the fidelity study of stored sets.
+
+Per stored set a run used: the table of :func:`lcpbench.workflows.fidelity.fidelity_table`
+(taken from the run store's cache when present), two heatmaps over the fidelity knobs
+``(p, eps_gmres)`` (log10 of the largest ``||A_low - A||_inf`` and how many low MVPs cost
+one high MVP, as the paper's figure) and the share of instances within ``c(A)`` of ``A``
+(as the paper's appendix figure).
+"""
+
+from __future__ import annotations
+
+import html
+import math
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lcpbench.report import plots
+from lcpbench.workflows.fidelity import TABLE_COLUMNS, cached_fidelity_table
+
+__all__ = ["GRID_MODELS", "cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
+
+#: Models whose fidelity is set by the knobs (p, eps_gmres); "" = not recorded.
+GRID_MODELS = ("", "bim")
+
+
+def _on_grid(table: pd.DataFrame) -> pd.Series:
+    """Rows that get a heatmap cell: both knobs, a knob-driven model, first of its cell.
+
+    ``lcpbench generate`` records the high fidelity's ``p`` and ``eps_gmres`` on other
+    models too (``rpy``, ``self``); those knobs do not set their fidelity, so such rows
+    are listed beside the heatmaps instead.
+    """
+    mask = (table["p"].notna() & table["eps_gmres"].notna()
+            & table["model"].fillna("").astype(str).str.lower().isin(GRID_MODELS))
+    dup = table["p"].astype(str) + "/" + table["eps_gmres"].astype(str)
+    return mask & ~(dup.where(mask).duplicated() & mask)
+
+
+def _grid(table: pd.DataFrame) -> pd.DataFrame:
+    """Rows placed on the (p, eps_gmres) heatmaps (:func:`_on_grid`)."""
+    if table is None or table.empty:
+        return pd.DataFrame(columns=TABLE_COLUMNS)
+    return table[_on_grid(table)]
+
+
+def _fmt_eps(e: float) -> str:
+    exp = math.log10(e)
+    return f"1e{round(exp)}" if abs(exp - round(exp)) < 1e-9 else f"{e:.2g}"
+
+
+def _fmt_p(p: float) -> str:
+    return str(int(p)) if float(p).is_integer() else f"{p:g}"
+
+
+def _heat(ax, grid: pd.DataFrame, column: str, title: str, cbar: str, fmt: str,
+          cmap: str, fig) -> None:
+    ps = sorted(grid["p"].unique())
+    eps = sorted(grid["eps_gmres"].unique(), reverse=True)
+    M = np.full((len(ps), len(eps)), np.nan)
+    for _, r in grid.iterrows():
+        M[ps.index(r["p"]), eps.index(r["eps_gmres"])] = r[column]
+    shown = np.ma.masked_invalid(np.where(np.isfinite(M), M, np.nan))
+    im = ax.imshow(shown, origin="lower", aspect="auto", cmap=cmap)
+    fig.colorbar(im, ax=ax, label=cbar)
+    ax.set_xticks(range(len(eps)))
+    ax.set_xticklabels([_fmt_eps(e) for e in eps])
+    ax.set_yticks(range(len(ps)))
+    ax.set_yticklabels([_fmt_p(p) for p in ps])
+    ax.set_xlabel("eps_gmres")
+    ax.set_ylabel("p")
+    ax.set_title(title)
+    finite = M[np.isfinite(M)]
+    mid = float(np.mean([finite.min(), finite.max()])) if finite.size else 0.0
+    for a in range(len(ps)):
+        for b in range(len(eps)):
+            if np.isfinite(M[a, b]):
+                ax.text(b, a, format(M[a, b], fmt), ha="center", va="center", fontsize=7,
+                        color="white" if M[a, b] < mid else "black")
+
+
+
+def heatmap_svg(table: pd.DataFrame) -> str:
+    """The paper's two heatmaps over ``(p, eps_gmres)`` as one SVG string.
+
+    Left: log10 of the max ``||A_low - A||_inf``; right: median low MVPs per high MVP.
+    Cells: fidelities with both knobs whose model is one of ``GRID_MODELS``. Returns
+    ``""`` when there is none.
+    """
+    grid = _grid(table)
+    if grid.empty:
+        return ""
+    ncol = grid["eps_gmres"].nunique()
+    fig, axes = plots.figure(max(8.0, 2 * (2.5 + 0.7 * ncol)), 3.6, ncols=2)
+    _heat(axes[0, 0], grid, "log10_max_err", "log10 max ||A_low - A||_inf",
+          "log10 error", ".2f", "viridis", fig)
+    _heat(axes[0, 1], grid, "median_low_per_high", "low MVPs per high MVP (median)",
+          "t_high / t_low", ".3g", "magma", fig)
+    return plots.svg_of(fig)
+
+
+def cottle_heatmap_svg(table: pd.DataFrame) -> str:
+    """The appendix figure: share of instances with ``||A_low - A||_inf < c(A)``, in %."""
+    grid = _grid(table).copy()
+    if grid.empty:
+        return ""
+    grid["pct"] = 100.0 * grid["share_err_below_c"]
+    ncol = grid["eps_gmres"].nunique()
+    fig, ax = plots.figure(max(4.5, 2.5 + 0.7 * ncol), 3.6)
+    _heat(ax, grid, "pct", "% instances with ||A_low - A||_inf < c(A)", "%",
+          ".0f", "cividis", fig)
+    return plots.svg_of(fig)
+
+
+def _html_table(df: pd.DataFrame) -> str:
+    if df is None or df.empty:
+        return '<p class="note">(no rows)</p>'
+    return df.to_html(index=False, escape=True, na_rep="-", border=0,
+                      float_format=lambda v: f"{v:.4g}")
+
+
+def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
+    """HTML: the two heatmaps (inline SVG) and a small table of the other fidelities.
+
+    Fidelities off the ``(p, eps_gmres)`` grid (another model such as ``rpy``, or a knob
+    missing; see ``GRID_MODELS``) have no cell in the heatmaps and are listed in the
+    table instead. The SVG's ids get ``id_prefix`` so
+    several figures can share one page.
+    """
+    parts = []
+    svg = heatmap_svg(table)
+    if svg:
+        svg = plots.prefix_ids(svg, id_prefix)
+        parts.append(f'<div class="fig">{svg}</div>')
+    if table is not None and not table.empty:
+        others = table[~_on_grid(table)]
+        if not others.empty:
+            parts.append("<p class='note'>Fidelities not on the (p, eps_gmres) grid (other "
+                         "models, or a knob missing):</p>")
+            parts.append(_html_table(others))
+    return "\n".join(parts)
+
+
+def fidelity_section(paths: Iterable, cache_dir=None,
+                     progress: Callable[[str], None] | None = None) -> str:
+    """HTML section of the report: per stored set, the table, heatmaps and Cottle figure.
+
+    Parameters
+    ----------
+    paths : iterable
+        Stored-set paths, or ``(path, instance ids or None)`` pairs as returned by
+        :func:`lcpbench.workflows.fidelity.stored_set_specs`.
+    cache_dir : str or Path, optional
+        Where the tables are cached (a run store's ``cache/``); None recomputes.
+    progress : callable, optional
+        Called with a line of text before each set whose table is not cached yet.
+
+    Returns
+    -------
+    str
+        ``""`` when no set has a low fidelity.
+    """
+    from lcpbench.sets import StoredSetError
+
+    parts = []
+    for k, item in enumerate(paths):
+        path, ids = (item if isinstance(item, tuple) else (item, None))
+        path = Path(path)
+        try:
+            if progress is not None:
+                progress(f"fidelity study of {path.name} (c(A) of each instance; cached "
+                         "after the first time)")
+            table = cached_fidelity_table(path, ids, cache_dir)
+        except (StoredSetError, OSError, ValueError) as exc:
+            parts.append(f"<h3>{html.escape(path.name)}</h3><p class='note'>fidelity study "
+                         f"skipped: {html.escape(str(exc))}</p>")
+            continue
+        if table.empty:
+            continue
+        used = f"{len(ids)} selected instance(s)" if ids is not None else "all instances"
+        parts.append(f"<h3>{html.escape(path.name)} ({used})</h3>")
+        parts.append(_html_table(table))
+        parts.append(heatmaps(table, id_prefix=f"fid{k}a_"))
+        cottle = cottle_heatmap_svg(table)
+        if cottle:
+            parts.append(f'<div class="fig">{plots.prefix_ids(cottle, f"fid{k}b_")}</div>')
+    if not parts:
+        return ""
+    intro = ("<h2>Fidelity study of the stored sets</h2><p class='note'>Per low fidelity: "
+             "log10 of the largest ||A_low - A||_inf over the instances (induced infinity "
+             "norm), the median number of low-fidelity MVPs per high-fidelity MVP "
+             "(1 / cost_ratio, as measured when the set was generated), and the share of "
+             "instances with ||A_low - A||_inf &lt; c(A), the condition of Cottle's "
+             "lemma for a locally Lipschitz solution map. c(A) is estimated by "
+             "multi-start local optimisation (the paper's appendix on computing c(A)); the "
+             "estimate is an upper bound of c(A), so share_err_below_lower also gives the share "
+             "certainly inside, with the lower bound lambda_min(A)/n of c(A).</p>")
+    return intro + "\n".join(parts)
