@@ -14,12 +14,15 @@ what it allows and say so in the result's message.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, cg
 
 from lcpbench import LCP, Operator, register_problem
+from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.problems.synthetic import Count, Seed, Size, seeded
 
 __all__ = ["inexact_inverse", "inexact_lcp", "stiffness"]
 
@@ -68,7 +71,7 @@ def inexact_lcp(rng: np.random.Generator, n: int, rtol: float, *, shift: float =
 
 
 @dataclass(frozen=True)
-class InexactParams:
+class InexactParams(CheckedParams):
     """Parameters of inexact.
 
     Parameters
@@ -85,22 +88,14 @@ class InexactParams:
         cheaper settings).
     """
 
-    count: int = 4
-    seed: int = 0
-    n: int = 60
-    rtol: float = 1e-6
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.count, int) and self.count >= 1):
-            raise ValueError(f"count must be an integer >= 1, got {self.count!r}")
-        if not (isinstance(self.n, int) and self.n >= 1):
-            raise ValueError(f"n must be an integer >= 1, got {self.n!r}")
-        if not (np.isfinite(self.rtol) and 0 < self.rtol < 1):
-            raise ValueError(f"rtol must be in (0, 1), got {self.rtol!r}")
+    count: Count = 4
+    seed: Seed = 0
+    n: Size = 60
+    rtol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-6
 
 
 @register_problem("inexact", InexactParams)
 def inexact(p: InexactParams) -> list[LCP]:
     """LCPs whose products are conjugate-gradient solves at a stated tolerance."""
-    return [inexact_lcp(np.random.default_rng([p.seed, i]), p.n, p.rtol,
-                        name=f"inexact-{i}") for i in range(p.count)]
+    return seeded(p.count, p.seed,
+                  lambda i, rng: inexact_lcp(rng, p.n, p.rtol, name=f"inexact-{i}"))

@@ -16,10 +16,13 @@ found such a direction (status ``infeasible``) or ran out of budget; a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from lcpbench import LCP, register_problem
+from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.problems.synthetic import Count, Seed, seeded
 
 __all__ = ["infeasible_lcp", "unbounded_lcp"]
 
@@ -73,7 +76,7 @@ def unbounded_lcp(rng: np.random.Generator, n: int, *, name: str = "unbounded") 
 
 
 @dataclass(frozen=True)
-class InfeasibleParams:
+class InfeasibleParams(CheckedParams):
     """Parameters of infeasible and unbounded.
 
     Parameters
@@ -86,26 +89,18 @@ class InfeasibleParams:
         Size of every instance (default 5).
     """
 
-    count: int = 4
-    seed: int = 0
-    n: int = 5
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.count, int) and self.count >= 1):
-            raise ValueError(f"count must be an integer >= 1, got {self.count!r}")
-        if not (isinstance(self.n, int) and self.n >= 2):
-            raise ValueError(f"n must be an integer >= 2, got {self.n!r}")
+    count: Count = 4
+    seed: Seed = 0
+    n: Annotated[int, Bounds(ge=2)] = 5
 
 
 @register_problem("infeasible", InfeasibleParams)
 def infeasible(p: InfeasibleParams) -> list[LCP]:
     """LCPs without a solution: a null direction d >= 0 of A with b'd < 0."""
-    return [infeasible_lcp(np.random.default_rng([p.seed, i]), p.n, name=f"infeasible-{i}")
-            for i in range(p.count)]
+    return seeded(p.count, p.seed, lambda i, rng: infeasible_lcp(rng, p.n, name=f"infeasible-{i}"))
 
 
 @register_problem("unbounded", InfeasibleParams)
 def unbounded(p: InfeasibleParams) -> list[LCP]:
     """LCPs whose QP is unbounded below: a zero row of A with a negative b_i."""
-    return [unbounded_lcp(np.random.default_rng([p.seed, i]), p.n, name=f"unbounded-{i}")
-            for i in range(p.count)]
+    return seeded(p.count, p.seed, lambda i, rng: unbounded_lcp(rng, p.n, name=f"unbounded-{i}"))
