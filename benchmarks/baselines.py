@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 
-from common import HARD, instances, progress, run_set, solver_names
+from common import HARD, instances, print_markdown_table, progress, run_set, solver_names
 from lcpbench.problems.random import with_perturbed_lows
 
 import lcpbench
@@ -71,23 +71,18 @@ def main() -> None:
             data[s][label] = run_set(MULTI_SPECS.get(s, s), lowed if multi else plain)
             progress(f"{label:18s}", f"{s:14s}", data[s][label])
     base = data["bb-pgd"]
-    print("| solver | " + " | ".join(sets) + " |")
-    print("|---|" + "---|" * len(sets))
-    for s in names:
-        cells = []
-        for label in sets:
-            r = data[s][label]
-            if not r["solved"]:
-                cells.append(f"- [0/{r['runs']}]")
-                continue
-            ratio = ""
-            if solvers()[s].mvp_only and base[label]["solved"] and base[label]["emvps"] > 0:
-                ratio = f" ({r['emvps'] / base[label]['emvps']:.2f}x)"
-            cells.append(f"{r['emvps']:.0f}{ratio} / {1e3 * r['time_s']:.1f} ms "
-                         f"[{r['solved']}/{r['runs']}]")
-        tag = "" if solvers()[s].mvp_only else " (dense)"
-        print(f"| {s}{tag} | " + " | ".join(cells) + " |")
 
+    def cell(s: str, label: str) -> str:
+        r = data[s][label]
+        if not r["solved"]:
+            return f"- [0/{r['runs']}]"
+        ratio = ""
+        if solvers()[s].mvp_only and base[label]["solved"] and base[label]["emvps"] > 0:
+            ratio = f" ({r['emvps'] / base[label]['emvps']:.2f}x)"
+        return f"{r['emvps']:.0f}{ratio} / {1e3 * r['time_s']:.1f} ms [{r['solved']}/{r['runs']}]"
+
+    print_markdown_table(names, sets, cell,
+                         lambda s: s + ("" if solvers()[s].mvp_only else " (dense)"))
 
 if __name__ == "__main__":
     main()

@@ -47,3 +47,14 @@ def applicable(solver: str, lcps) -> bool:
 
 def progress(*parts) -> None:
     print("  " + " ".join(str(p) for p in parts), file=sys.stderr, flush=True)
+
+
+def print_markdown_table(names, sets, cell, label=lambda s: s) -> None:
+    """Print a Markdown table: one row per solver in ``names``, one column per set label.
+
+    ``cell(solver, set_label)`` gives the text of a cell; ``label(solver)`` the row header.
+    """
+    print("| solver | " + " | ".join(sets) + " |")
+    print("|---|" + "---|" * len(sets))
+    for s in names:
+        print(f"| {label(s)} | " + " | ".join(cell(s, lab) for lab in sets) + " |")

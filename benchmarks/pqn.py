@@ -21,7 +21,8 @@ import sys
 
 import numpy as np
 
-from common import HARD, applicable, instances, progress, run_set, solver_names
+from common import (HARD, applicable, instances, print_markdown_table, progress, run_set,
+                    solver_names)
 
 
 def medians(solver: str, lcps, tol: float = 1e-8) -> tuple[float, int, int]:
@@ -47,23 +48,19 @@ def table(quick: bool) -> None:
             data[s][label] = medians(s, lcps)
             progress(f"{label:40s}", f"{s:16s}", data[s][label])
     base = data.get("bb-pgd", {})
-    print("| solver | " + " | ".join(sets) + " |")
-    print("|---|" + "---|" * len(sets))
-    for s in names:
-        cells = []
-        for label in sets:
-            v = data[s][label]
-            if v is None:
-                cells.append("n/a")
-                continue
-            med, ok, n = v
-            ratio = ""
-            if base.get(label) and np.isfinite(base[label][0]) and base[label][0] > 0 \
-                    and np.isfinite(med):
-                ratio = f" ({med / base[label][0]:.2f}x)"
-            cells.append(f"{med:.1f}{ratio} [{ok}/{n}]")
-        print(f"| {s} | " + " | ".join(cells) + " |")
 
+    def cell(s: str, label: str) -> str:
+        v = data[s][label]
+        if v is None:
+            return "n/a"
+        med, ok, n = v
+        ratio = ""
+        if base.get(label) and np.isfinite(base[label][0]) and base[label][0] > 0 \
+                and np.isfinite(med):
+            ratio = f" ({med / base[label][0]:.2f}x)"
+        return f"{med:.1f}{ratio} [{ok}/{n}]"
+
+    print_markdown_table(names, sets, cell)
 
 def tune(quick: bool) -> None:
     k = 3 if quick else 6

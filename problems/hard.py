@@ -39,7 +39,7 @@ import numpy as np
 from lcpbench import LCP, register_problem
 from lcpbench.core.specs import Bounds, CheckedParams
 
-from .synthetic import (Cond, Count, NonNegative, Seed, Size, meta, planted_b,
+from .synthetic import (Cond, Count, NonNegative, SeededParams, Size, meta, planted_b,
                         planted_pair, random_spd_matrix, reference, seeded)
 
 __all__ = ["planted", "spd_cond", "singular_psd", "fathi", "tiny", "all_inactive",
@@ -51,15 +51,11 @@ BB_CYCLE_FILE = Path(__file__).with_name("data") / "bb_cycle.json"
 
 # ---------------------------------------------------------------------- planted
 @dataclass(frozen=True)
-class PlantedParams(CheckedParams):
+class PlantedParams(SeededParams):
     """Parameters of planted.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 5).
-    seed : int
-        Random seed; instance i uses ``default_rng([seed, i])`` (default 0).
     n_active : int
         Indices with x_i > 0 = w_i (default 20).
     n_inactive : int
@@ -70,8 +66,6 @@ class PlantedParams(CheckedParams):
         Condition number of the SPD matrix (default 100).
     """
 
-    count: Count = 5
-    seed: Seed = 0
     n_active: NonNegative = 20
     n_inactive: NonNegative = 20
     n_degenerate: NonNegative = 4
@@ -102,7 +96,7 @@ def planted(p: PlantedParams) -> list[LCP]:
 
 # ---------------------------------------------------------------------- spd-cond
 @dataclass(frozen=True)
-class SpdCondParams(CheckedParams):
+class SpdCondParams(SeededParams):
     """Parameters of spd-cond.
 
     Parameters
@@ -110,8 +104,6 @@ class SpdCondParams(CheckedParams):
     count : int
         Number of instances; their condition numbers are log-spaced from
         ``cond_min`` to ``cond_max`` (default 10).
-    seed : int
-        Random seed (default 0).
     n : int
         Size of every instance (default 50).
     cond_min, cond_max : float
@@ -119,7 +111,6 @@ class SpdCondParams(CheckedParams):
     """
 
     count: Count = 10
-    seed: Seed = 0
     n: Size = 50
     cond_min: Cond = 1e1
     cond_max: Cond = 1e10
@@ -153,15 +144,11 @@ def spd_cond(p: SpdCondParams) -> list[LCP]:
 
 # ---------------------------------------------------------------------- singular-psd
 @dataclass(frozen=True)
-class SingularPsdParams(CheckedParams):
+class SingularPsdParams(SeededParams):
     """Parameters of singular-psd.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 5).
-    seed : int
-        Random seed (default 0).
     n_independent : int
         Linearly independent rows of J, i.e. the rank of A (default 20).
     n_duplicate : int
@@ -172,8 +159,6 @@ class SingularPsdParams(CheckedParams):
         Columns of J (degrees of freedom; must be >= n_independent; default 40).
     """
 
-    count: Count = 5
-    seed: Seed = 0
     n_independent: Size = 20
     n_duplicate: NonNegative = 5
     n_combination: NonNegative = 5
@@ -324,15 +309,11 @@ def tiny(p: TinyParams) -> list[LCP]:
 
 # ---------------------------------------------------------------------- all-inactive
 @dataclass(frozen=True)
-class AllInactiveParams(CheckedParams):
+class AllInactiveParams(SeededParams):
     """Parameters of all-inactive.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 3).
-    seed : int
-        Random seed (default 0).
     n : int
         Size (default 30).
     cond : float
@@ -343,7 +324,6 @@ class AllInactiveParams(CheckedParams):
     """
 
     count: Count = 3
-    seed: Seed = 0
     n: Size = 30
     cond: Cond = 100.0
     zero_fraction: Annotated[float, Bounds(ge=0, le=1)] = 0.1
@@ -370,15 +350,11 @@ def all_inactive(p: AllInactiveParams) -> list[LCP]:
 
 # ---------------------------------------------------------------------- bad-scale
 @dataclass(frozen=True)
-class BadScaleParams(CheckedParams):
+class BadScaleParams(SeededParams):
     """Parameters of bad-scale.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 3).
-    seed : int
-        Random seed (default 0).
     n : int
         Size (default 40; at least 2, for the two extreme magnitudes).
     cond : float
@@ -388,7 +364,6 @@ class BadScaleParams(CheckedParams):
     """
 
     count: Count = 3
-    seed: Seed = 0
     n: Annotated[int, Bounds(ge=2)] = 40
     cond: Cond = 100.0
     log_min: Annotated[float, Bounds()] = -12.0

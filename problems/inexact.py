@@ -21,8 +21,8 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, cg
 
 from lcpbench import LCP, Operator, register_problem
-from lcpbench.core.specs import Bounds, CheckedParams
-from lcpbench.problems.synthetic import Count, Seed, Size, seeded
+from lcpbench.core.specs import Bounds
+from lcpbench.problems.synthetic import Count, SeededParams, Size, seeded
 
 __all__ = ["inexact_inverse", "inexact_lcp", "stiffness"]
 
@@ -71,15 +71,11 @@ def inexact_lcp(rng: np.random.Generator, n: int, rtol: float, *, shift: float =
 
 
 @dataclass(frozen=True)
-class InexactParams(CheckedParams):
+class InexactParams(SeededParams):
     """Parameters of inexact.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 4).
-    seed : int
-        Instance i uses ``default_rng([seed, i])`` (default 0).
     n : int
         Size of every instance (default 60).
     rtol : float
@@ -89,7 +85,6 @@ class InexactParams(CheckedParams):
     """
 
     count: Count = 4
-    seed: Seed = 0
     n: Size = 60
     rtol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-6
 

@@ -21,8 +21,8 @@ from typing import Annotated
 import numpy as np
 
 from lcpbench import LCP, register_problem
-from lcpbench.core.specs import Bounds, CheckedParams
-from lcpbench.problems.synthetic import Count, Seed, seeded
+from lcpbench.core.specs import Bounds
+from lcpbench.problems.synthetic import Count, SeededParams, seeded
 
 __all__ = ["infeasible_lcp", "unbounded_lcp"]
 
@@ -76,21 +76,16 @@ def unbounded_lcp(rng: np.random.Generator, n: int, *, name: str = "unbounded") 
 
 
 @dataclass(frozen=True)
-class InfeasibleParams(CheckedParams):
+class InfeasibleParams(SeededParams):
     """Parameters of infeasible and unbounded.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 4).
-    seed : int
-        Instance i uses ``default_rng([seed, i])`` (default 0).
     n : int
         Size of every instance (default 5).
     """
 
     count: Count = 4
-    seed: Seed = 0
     n: Annotated[int, Bounds(ge=2)] = 5
 
 

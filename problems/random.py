@@ -18,24 +18,20 @@ from typing import Annotated
 import numpy as np
 
 from lcpbench import LCP, Operator, register_problem
-from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.core.specs import Bounds
 
-from .synthetic import Cond, Count, Seed, Size, meta, random_spd_matrix, seeded
+from .synthetic import Cond, Count, SeededParams, Size, meta, random_spd_matrix, seeded
 
 __all__ = ["random_spd", "bifidelity", "symmetric_perturbation", "with_perturbed_lows",
            "PERTURBED_LOWS"]
 
 
 @dataclass(frozen=True)
-class RandomSpdParams(CheckedParams):
+class RandomSpdParams(SeededParams):
     """Parameters of random-spd.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 5).
-    seed : int
-        Random seed; instance i uses ``default_rng([seed, i])`` (default 0).
     n_min, n_max : int
         Range of sizes, drawn uniformly per instance (defaults 150 and 300).
     cond_min, cond_max : float
@@ -43,8 +39,6 @@ class RandomSpdParams(CheckedParams):
         (defaults 10 and 100).
     """
 
-    count: Count = 5
-    seed: Seed = 0
     n_min: Size = 150
     n_max: Size = 300
     cond_min: Cond = 10.0
@@ -82,15 +76,11 @@ def random_spd(p: RandomSpdParams) -> list[LCP]:
 
 
 @dataclass(frozen=True)
-class BifidelityParams(CheckedParams):
+class BifidelityParams(SeededParams):
     """Parameters of bifidelity.
 
     Parameters
     ----------
-    count : int
-        Number of instances (default 3).
-    seed : int
-        Random seed (default 0).
     n : int
         Size of every instance (default 150).
     cond : float
@@ -110,7 +100,6 @@ class BifidelityParams(CheckedParams):
     """
 
     count: Count = 3
-    seed: Seed = 0
     n: Size = 150
     cond: Cond = 50.0
     rel_error: Annotated[float, Bounds(ge=0)] = 1e-3

@@ -9,14 +9,16 @@ a family's parameters are built.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated, Callable, Optional
 
 import numpy as np
 
 from lcpbench import LCP
-from lcpbench.core.specs import Bounds
+from lcpbench.core.specs import Bounds, CheckedParams
 
-__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "seeded", "random_spd_matrix",
+__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "SeededParams", "seeded",
+           "random_spd_matrix",
            "planted_b", "planted_pair", "reference", "meta"]
 
 #: Number of instances of a family.
@@ -30,6 +32,23 @@ NonNegative = Annotated[int, Bounds(ge=0)]
 #: A condition number.
 Cond = Annotated[float, Bounds(ge=1)]
 
+
+
+@dataclass(frozen=True)
+class SeededParams(CheckedParams):
+    """Parameters every seeded family shares (a family redeclares ``count`` for its own default).
+
+    Parameters
+    ----------
+    count : int
+        Number of instances.
+    seed : int
+        Random seed; instance i draws from ``default_rng([seed, i])``, so it does not depend
+        on how many instances are generated.
+    """
+
+    count: Count = 5
+    seed: Seed = 0
 
 def seeded(count: int, seed: int, make: Callable[[int, np.random.Generator], LCP]) -> list[LCP]:
     """``[make(i, default_rng([seed, i])) for i in range(count)]``: one random stream per instance.

@@ -240,20 +240,20 @@ def _unknown(kind: str, name: str, known) -> KeyError:
                     f"(`lcpbench list` shows them with their parameters)")
 
 
+def _lookup(kind: str, registered: dict, name: str):
+    if name not in registered:
+        raise _unknown(kind, name, registered)
+    return registered[name]
+
+
 def get_solver(name: str) -> SolverInfo:
     """The registered solver ``name`` (KeyError naming the known ones otherwise)."""
-    all_ = solvers()
-    if name not in all_:
-        raise _unknown("solver", name, all_)
-    return all_[name]
+    return _lookup("solver", solvers(), name)
 
 
 def get_problem(name: str) -> ProblemInfo:
-    """The registered problem family ``name``."""
-    all_ = problems()
-    if name not in all_:
-        raise _unknown("problem", name, all_)
-    return all_[name]
+    """The registered problem family ``name`` (KeyError naming the known ones otherwise)."""
+    return _lookup("problem", problems(), name)
 
 
 
@@ -298,10 +298,7 @@ def register_scene(name: str, params: type):
 
 def get_scene(name: str) -> SceneInfo:
     """The registered scene family ``name`` (KeyError naming the known ones otherwise)."""
-    all_ = scenes()
-    if name not in all_:
-        raise _unknown("scene", name, all_)
-    return all_[name]
+    return _lookup("scene", scenes(), name)
 
 
 def make_scene(spec: Any) -> Any:

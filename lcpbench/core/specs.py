@@ -262,9 +262,16 @@ def make_params(owner: str, cls: type, values: Optional[dict] = None):
 
 
 def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
-    """``(name, type, default, doc)`` for every parameter (docs from the class docstring)."""
+    """``(name, type, default, doc)`` for every parameter.
+
+    The docs come from the ``Parameters`` sections of the class's docstring and of its
+    bases', so parameters declared once in a base class are documented once there.
+    """
     hints = typing.get_type_hints(cls)
-    docs = _param_docs(cls.__doc__ or "")
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):   # a subclass documents its own and overrides
+        docs.update({k: v for k, v in _param_docs(klass.__dict__.get("__doc__") or "").items()
+                     if v})
     out = []
     for f in dataclasses.fields(cls):
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
