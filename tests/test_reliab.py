@@ -27,7 +27,7 @@ class NoParams:
     """No parameters."""
 
 
-@register_solver("test-drifter", NoParams)
+@register_solver("test-drifter", NoParams, listed=False)
 def drifter(ctx, p):
     """Claims convergence at x = 1 with a made-up w = 0 (a drifted recurrence)."""
     x = np.ones(ctx.n)
@@ -36,7 +36,7 @@ def drifter(ctx, p):
     return ctx.finish(x, w, Status.converged, "trust me")
 
 
-@register_solver("test-sleeper", NoParams)
+@register_solver("test-sleeper", NoParams, listed=False)
 def sleeper(ctx, p):
     """Reports one iterate, then loops in Python without any product or report."""
     x = np.zeros(ctx.n)
@@ -92,7 +92,7 @@ def test_never_converged_on_infeasible_lcps(solver):
 def test_infeasible_status_from_a_confirmed_null_direction():
     # x = t d along the null direction of A = diag(1, 0) with b'd < 0: a solver that walks
     # out along it ends with the framework's evidence
-    @register_solver("test-walker", NoParams)
+    @register_solver("test-walker", NoParams, listed=False)
     def walker(ctx, p):
         for t in (0.0, 1e3, 1e6, 1e12):
             x = np.array([1.0, t])
