@@ -132,7 +132,7 @@ def _convert(owner: str, key: str, tp: Any, value: Any) -> Any:
             try:
                 return float(value)
             except ValueError:
-                pass
+                raise TypeError(f"{what} expects a number, got {value!r}") from None
         raise TypeError(f"{what} expects a number, got {value!r}")
     if tp is str:
         if isinstance(value, str):
