@@ -25,11 +25,14 @@ honest and the reported ``w`` independent of the dense sweeps:
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from dataclasses import dataclass
 
 import numpy as np
 
 from lcpbench import register_solver
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
 
@@ -37,7 +40,7 @@ __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
 
 
 @dataclass(frozen=True)
-class PGSParams:
+class PGSParams(CheckedParams):
     """Parameters of pgs.
 
     Parameters
@@ -47,11 +50,7 @@ class PGSParams:
         projected SOR (default 1.0).
     """
 
-    omega: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not 0 < self.omega < 2:
-            raise ValueError(f"omega must be in (0, 2), got {self.omega}")
+    omega: Annotated[float, Bounds(gt=0, lt=2)] = 1.0
 
 
 @register_solver("pgs", PGSParams, needs_dense=True)
@@ -95,7 +94,7 @@ def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
 
 
 @dataclass(frozen=True)
-class LemkeParams:
+class LemkeParams(CheckedParams):
     """Parameters of lemke.
 
     Parameters
@@ -113,17 +112,9 @@ class LemkeParams:
         pivots (default 20), bounding the drift of the product-form updates.
     """
 
-    max_pivots: int = 0
-    pivot_tol: float = 1e-9
-    refactor_every: int = 20
-
-    def __post_init__(self) -> None:
-        if self.max_pivots < 0:
-            raise ValueError(f"max_pivots must be >= 0 (0: automatic), got {self.max_pivots}")
-        if not 0 < self.pivot_tol < 1:
-            raise ValueError(f"pivot_tol must be in (0, 1), got {self.pivot_tol}")
-        if self.refactor_every < 1:
-            raise ValueError(f"refactor_every must be >= 1, got {self.refactor_every}")
+    max_pivots: Annotated[int, Bounds(ge=0)] = 0
+    pivot_tol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-9
+    refactor_every: Annotated[int, Bounds(ge=1)] = 20
 
 
 def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.ndarray,

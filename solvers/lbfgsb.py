@@ -52,6 +52,8 @@ restarts, ends the solve ``stagnated``.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -59,6 +61,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from lcpbench import register_solver
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext, StopSolver
 from lcpbench.core.result import SolveResult, Status
 
@@ -66,7 +69,7 @@ __all__ = ["LBFGSBParams", "lbfgsb"]
 
 
 @dataclass(frozen=True)
-class LBFGSBParams:
+class LBFGSBParams(CheckedParams):
     """Parameters of l-bfgs-b.
 
     Parameters
@@ -87,23 +90,11 @@ class LBFGSBParams:
         (default 1e-6; 0: restart only after a stall).
     """
 
-    memory: int = 20
-    maxls: int = 20
-    cache: int = 4
-    max_restarts: int = 10
-    rebase_rtol: float = 1e-6
-
-    def __post_init__(self) -> None:
-        if self.memory < 1:
-            raise ValueError(f"memory must be >= 1, got {self.memory}")
-        if self.maxls < 1:
-            raise ValueError(f"maxls must be >= 1, got {self.maxls}")
-        if not 0 <= self.rebase_rtol < 1:
-            raise ValueError(f"rebase_rtol must be in [0, 1), got {self.rebase_rtol}")
-        if self.max_restarts < 0:
-            raise ValueError(f"max_restarts must be >= 0, got {self.max_restarts}")
-        if self.cache < 1:
-            raise ValueError(f"cache must be >= 1, got {self.cache}")
+    memory: Annotated[int, Bounds(ge=1)] = 20
+    maxls: Annotated[int, Bounds(ge=1)] = 20
+    cache: Annotated[int, Bounds(ge=1)] = 4
+    max_restarts: Annotated[int, Bounds(ge=0)] = 10
+    rebase_rtol: Annotated[float, Bounds(ge=0, lt=1)] = 1e-6
 
 
 class _Rebase(Exception):

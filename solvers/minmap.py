@@ -75,12 +75,13 @@ the defaults stay with the source so the baseline is the paper's.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Annotated, Callable, Literal, Optional
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, gmres, minres
 
 from lcpbench import register_solver
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
@@ -91,7 +92,7 @@ _EPS = np.finfo(float).eps
 
 
 @dataclass(frozen=True)
-class MinMapParams:
+class MinMapParams(CheckedParams):
     """Parameters of minmap-newton.
 
     Parameters
@@ -128,34 +129,15 @@ class MinMapParams:
         projects first and, if that search fails, retries unprojected.
     """
 
-    krylov: str = "gmres"
-    inner_tol: float = 1e-6
-    inner_max_iter: int = 200
-    restart: int = 20
-    alpha: float = 0.5
-    beta: float = 1e-3
-    max_backtracks: int = 47
-    reg: float = 0.0
-    projection: str = "retry"
-
-    def __post_init__(self) -> None:
-        if self.krylov not in ("gmres", "cg", "minres"):
-            raise ValueError(f"krylov must be 'gmres', 'cg' or 'minres', got {self.krylov!r}")
-        if not 0 < self.inner_tol < 1:
-            raise ValueError(f"inner_tol must be in (0, 1), got {self.inner_tol}")
-        if self.inner_max_iter < 1 or self.restart < 1:
-            raise ValueError("inner_max_iter and restart must be >= 1")
-        if not 0 < self.alpha < 1:
-            raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
-        if not 0 < self.beta < 1:
-            raise ValueError(f"beta must be in (0, 1), got {self.beta}")
-        if self.projection not in ("always", "retry", "never"):
-            raise ValueError(f"projection must be 'always', 'retry' or 'never', got "
-                             f"{self.projection!r}")
-        if not self.reg >= 0:
-            raise ValueError(f"reg must be >= 0, got {self.reg}")
-        if self.max_backtracks < 0:
-            raise ValueError(f"max_backtracks must be >= 0, got {self.max_backtracks}")
+    krylov: Literal["gmres", "cg", "minres"] = "gmres"
+    inner_tol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-6
+    inner_max_iter: Annotated[int, Bounds(ge=1)] = 200
+    restart: Annotated[int, Bounds(ge=1)] = 20
+    alpha: Annotated[float, Bounds(gt=0, lt=1)] = 0.5
+    beta: Annotated[float, Bounds(gt=0, lt=1)] = 1e-3
+    max_backtracks: Annotated[int, Bounds(ge=0)] = 47
+    reg: Annotated[float, Bounds(ge=0)] = 0.0
+    projection: Literal["always", "retry", "never"] = "retry"
 
 
 def _pad(v: np.ndarray, mask: np.ndarray, n: int) -> np.ndarray:

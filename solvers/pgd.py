@@ -19,12 +19,15 @@ forms ``A y`` from ``A x_k`` and ``A x_{k-1}``.
 
 from __future__ import annotations
 
+from typing import Annotated, Literal
+
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from lcpbench import register_solver
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.quasinewton import free_secant_pair
@@ -32,7 +35,6 @@ from lcpbench.toolkit.steps import cauchy_step
 
 __all__ = ["BBPGDParams", "APGDParams", "bb_pgd", "a_pgd", "power_iteration"]
 
-_BB_VARIANTS = ("bb1", "bb2", "alternate")
 _TAU_MIN, _TAU_MAX = 1e-30, 1e30
 
 
@@ -42,7 +44,7 @@ def _objective(x: np.ndarray, w: np.ndarray, b: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class BBPGDParams:
+class BBPGDParams(CheckedParams):
     """Parameters of bb-pgd.
 
     Parameters
@@ -87,23 +89,12 @@ class BBPGDParams:
         (which costs one product).
     """
 
-    variant: str = "bb1"
+    variant: Literal["bb1", "bb2", "alternate"] = "bb1"
     safeguard: bool = False
-    memory: int = 3
-    armijo: float = 1e-4
-    reference: str = "adaptive"
+    memory: Annotated[int, Bounds(ge=1)] = 3
+    armijo: Annotated[float, Bounds(gt=0, le=0.5)] = 1e-4
+    reference: Literal["adaptive", "gll"] = "adaptive"
     free_pair: bool = True
-
-    def __post_init__(self) -> None:
-        if self.variant not in _BB_VARIANTS:
-            raise ValueError(f"variant must be one of {', '.join(_BB_VARIANTS)}; "
-                             f"got {self.variant!r}")
-        if self.reference not in ("adaptive", "gll"):
-            raise ValueError(f"reference must be 'adaptive' or 'gll', got {self.reference!r}")
-        if self.memory < 1:
-            raise ValueError(f"memory must be >= 1, got {self.memory}")
-        if not 0 < self.armijo <= 0.5:
-            raise ValueError(f"armijo must be in (0, 0.5], got {self.armijo}")
 
 
 class _AdaptiveReference:
@@ -219,7 +210,7 @@ def bb_pgd(ctx: SolverContext, p: BBPGDParams) -> SolveResult:
 
 
 @dataclass(frozen=True)
-class APGDParams:
+class APGDParams(CheckedParams):
     """Parameters of a-pgd.
 
     Parameters
@@ -255,30 +246,18 @@ class APGDParams:
         Seed of the power iteration's start vector.
     """
 
-    L: float = 0.0
-    mu: float = 0.0
-    constants: str = "power"
-    power_iters: int = 20
-    power_safety: float = 1.1
-    restart: str = "none"
+    L: Annotated[float, Bounds(ge=0)] = 0.0
+    mu: Annotated[float, Bounds(ge=0)] = 0.0
+    constants: Literal["power", "oracle"] = "power"
+    power_iters: Annotated[int, Bounds(ge=1)] = 20
+    power_safety: Annotated[float, Bounds(ge=1)] = 1.1
+    restart: Literal["none", "gradient", "function"] = "none"
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.L) and self.L >= 0.0):
-            raise ValueError(f"L must be a finite number >= 0 (0: estimate), got {self.L}")
-        if not (np.isfinite(self.mu) and self.mu >= 0.0):
-            raise ValueError(f"mu must be a finite number >= 0, got {self.mu}")
+        super().__post_init__()              # the declared bounds
         if self.L > 0.0 and self.mu > self.L:
             raise ValueError(f"mu ({self.mu}) must not exceed L ({self.L})")
-        if self.constants not in ("power", "oracle"):
-            raise ValueError(f"constants must be 'power' or 'oracle', got {self.constants!r}")
-        if self.power_iters < 1:
-            raise ValueError(f"power_iters must be >= 1, got {self.power_iters}")
-        if self.power_safety < 1.0:
-            raise ValueError(f"power_safety must be >= 1, got {self.power_safety}")
-        if self.restart not in ("none", "gradient", "function"):
-            raise ValueError(f"restart must be 'none', 'gradient' or 'function', "
-                             f"got {self.restart!r}")
 
 
 def power_iteration(apply, n: int, iters: int, seed: int = 0) -> float:

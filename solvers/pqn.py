@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Optional
+from typing import Literal, Optional
 
 import numpy as np
 
@@ -137,7 +137,7 @@ BiPQNParams.__doc__ = ("Parameters of bi-pqn.\n\n    Parameters\n    ----------\
 @dataclass(frozen=True)
 class MultiPQNParams(BiPQNParams):
     lows: tuple[str, ...] = ()
-    start: str = "high"
+    start: Literal["low", "high"] = "high"
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -38,11 +38,14 @@ Choices the source leaves open or makes differently (lcpbench's, documented):
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from dataclasses import dataclass
 
 import numpy as np
 
 from lcpbench import register_solver
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult
 from lcpbench.toolkit.quasinewton import free_secant_pair
@@ -144,7 +147,7 @@ def prox_rank1_nonneg(x: np.ndarray, d: np.ndarray, u: np.ndarray, sigma: float 
 
 
 @dataclass(frozen=True)
-class ZeroSR1Params:
+class ZeroSR1Params(CheckedParams):
     """Parameters of zero-sr1.
 
     Parameters
@@ -160,14 +163,8 @@ class ZeroSR1Params:
         zero, else the Cauchy step ``w'w / w'Aw``, one counted product.
     """
 
-    diag_weight: float = 0.8
-    first_step: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.diag_weight < 1.0:
-            raise ValueError(f"diag_weight must be in (0, 1), got {self.diag_weight}")
-        if not (np.isfinite(self.first_step) and self.first_step >= 0.0):
-            raise ValueError(f"first_step must be >= 0 (0: Cauchy step), got {self.first_step}")
+    diag_weight: Annotated[float, Bounds(gt=0, lt=1)] = 0.8
+    first_step: Annotated[float, Bounds(ge=0)] = 0.0
 
 
 @register_solver("zero-sr1", ZeroSR1Params)

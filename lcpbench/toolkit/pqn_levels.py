@@ -24,11 +24,12 @@ no product is ever repeated to rebuild a model.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Annotated, Callable, Literal, Optional
 
 import numpy as np
 
 from lcpbench.core.residuals import kkt_abs
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.prox import weighted_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
@@ -66,61 +67,31 @@ class Pairs:
 
 
 @dataclass(frozen=True)
-class MonoOptions:
+class MonoOptions(CheckedParams):
     """Choices of a Mono-PQN level (documented on the solvers' parameters, ``mono-pqn``)."""
 
-    memory: int = 0
-    scaling: str = "bb"
-    gamma: float = 0.8
-    prox_tol: float = 1e-12
-    prox_max_iter: int = 100
-    recompute_every: int = 50
+    memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
+    scaling: Literal["bb", "identity"] = "bb"
+    gamma: Annotated[float, Bounds(gt=0, le=1)] = 0.8
+    prox_tol: Annotated[float, Bounds(gt=0)] = 1e-12
+    prox_max_iter: Annotated[int, Bounds(ge=1)] = 100
+    recompute_every: Annotated[int, Bounds(ge=0)] = 50   # 0 never recomputes
     free_pair: bool = True
-
-    def __post_init__(self) -> None:
-        if self.memory < 0:
-            raise ValueError("memory must be >= 0 (0 keeps every pair)")
-        if self.scaling not in ("bb", "identity"):
-            raise ValueError(f"scaling must be 'bb' or 'identity', got {self.scaling!r}")
-        if not 0 < self.gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
-        if not self.prox_tol > 0 or self.prox_max_iter < 1:
-            raise ValueError("prox_tol must be > 0 and prox_max_iter >= 1")
-        if self.recompute_every < 0:
-            raise ValueError("recompute_every must be >= 0 (0 never recomputes)")
 
 
 @dataclass(frozen=True)
 class BiOptions(MonoOptions):
     """Choices of a Bi-PQN level (documented on the solvers' parameters, ``bi-pqn``)."""
 
-    start: str = "low"
-    inner_rtol: float = 0.1
-    forcing: float = 0.5
-    inner_max_iter: int = 20
-    inner_memory: int = 0
-    warm_rtol: float = 0.1
-    warm_max_iter: int = 50
-    model_tol: float = 0.5
-    max_fallbacks: int = 3
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.start not in ("low", "high"):
-            raise ValueError(f"start must be 'low' (the paper's) or 'high', got {self.start!r}")
-        if self.max_fallbacks < 0:
-            raise ValueError("max_fallbacks must be >= 0 (0: never abandon the low model)")
-        if not 0 < self.inner_rtol < 1 or not 0 < self.warm_rtol < 1:
-            raise ValueError("inner_rtol and warm_rtol must be in (0, 1)")
-        if not 0 < self.forcing <= 1:
-            raise ValueError(f"forcing must be in (0, 1], got {self.forcing}")
-        if not self.model_tol > 0:
-            raise ValueError(f"model_tol must be > 0 (inf: never judge the model), got "
-                             f"{self.model_tol}")
-        if self.inner_max_iter < 1 or self.warm_max_iter < 1:
-            raise ValueError("inner_max_iter and warm_max_iter must be >= 1")
-        if self.inner_memory < 0:
-            raise ValueError("inner_memory must be >= 0 (0 keeps every pair)")
+    start: Literal["low", "high"] = "low"
+    inner_rtol: Annotated[float, Bounds(gt=0, lt=1)] = 0.1
+    forcing: Annotated[float, Bounds(gt=0, le=1)] = 0.5
+    inner_max_iter: Annotated[int, Bounds(ge=1)] = 20
+    inner_memory: Annotated[int, Bounds(ge=0)] = 0        # 0 keeps every pair
+    warm_rtol: Annotated[float, Bounds(gt=0, lt=1)] = 0.1
+    warm_max_iter: Annotated[int, Bounds(ge=1)] = 50
+    model_tol: Annotated[float, Bounds(gt=0, finite=False)] = 0.5   # inf: never judge
+    max_fallbacks: Annotated[int, Bounds(ge=0)] = 3       # 0: never abandon the low model
 
 
 @dataclass
