@@ -20,7 +20,7 @@ from pathlib import Path
 from lcpbench.core.api import requested_lows
 from lcpbench.core.context import Budget
 from lcpbench.core.defaults import BASELINE_SOLVER
-from lcpbench.core.residuals import STOP_RULES
+from lcpbench.cli.options import add_stop_options
 from lcpbench.report.render import render_report, stderr_progress
 from lcpbench.run.runner import (Plan, _problem_key, describe_counts, execute, git_commit,
                                   machine_info, plan)
@@ -44,13 +44,10 @@ def add_run_parser(sub) -> None:
     p.add_argument("--problem", action="append", default=None, metavar="NAME[:k=v,...]",
                    help="problem spec, repeatable (values in brackets sweep)")
     p.add_argument("--config", metavar="SWEEP.toml", help="sweep file (see sweeps/)")
-    p.add_argument("--tol", type=float, default=None, help="stop-rule tolerance (default 1e-8)")
-    p.add_argument("--stop", choices=STOP_RULES, default=None,
-                   help="stop rule (default paper)")
+    add_stop_options(p, tol=None, stop=None, max_emvps=None, per="run")
     p.add_argument("--repeat", type=int, default=None, help="runs per (instance, solver)")
     p.add_argument("--seed", type=int, default=None,
                    help="seed for problem families that take one (default 0)")
-    p.add_argument("--max-emvps", type=float, default=None, help="E-MVP budget per run")
     p.add_argument("--out", metavar="DIR", help="run store folder (default: a new folder "
                                                  "under reports/)")
     p.add_argument("--jobs", type=int, default=1, help="parallel worker processes (>= 1)")

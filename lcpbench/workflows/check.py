@@ -52,8 +52,7 @@ from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.run.sweep import expand, per_low
 
 __all__ = ["check", "CheckRow", "default_specs", "load_baselines", "write_baselines",
-           "resolve_sets", "format_table", "add_check_parser",
-           "cmd_check", "default_baseline", "W_RTOL", "EMVP_SLACK", "BASELINE_FORMAT"]
+           "resolve_sets", "format_table", "default_baseline", "W_RTOL", "EMVP_SLACK", "BASELINE_FORMAT"]
 
 #: Relative tolerance on ``w`` against the stored reference.
 W_RTOL = 1e-6
@@ -313,60 +312,3 @@ def format_table(rows: Sequence[CheckRow]) -> str:
              "-" if np.isnan(r.max_w_err) else f"{r.max_w_err:.1e}", r.verdict] for r in rows]
     return tabulate(body, headers=["set", "solver", "solved/runs", "median E-MVPs",
                                    "baseline", "max w err", "verdict"])
-
-
-# ----------------------------------------------------------------------------- CLI
-
-
-def add_check_parser(sub) -> None:
-    """Add ``lcpbench check`` to the subcommands ``sub``."""
-    p = sub.add_parser(
-        "check", help="regression checks of the MVP-only solvers on the shipped sets",
-        description="Run every MVP-only solver with its defaults on every shipped set; exit 1 "
-                    "with a table of what regressed when a verified residual exceeds --tol, "
-                    f"w differs from the stored reference by more than {W_RTOL:g} relative, "
-                    f"or a median E-MVP count exceeds its baseline by more than "
-                    f"{EMVP_SLACK:.0%}.")
-    p.add_argument("--set", action="append", default=None, metavar="NAME",
-                   help="shipped set name or .h5 path, repeatable (default: every shipped set)")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable (default: every MVP-only solver)")
-    p.add_argument("--tol", type=float, default=1e-8, help="stop-rule tolerance (default 1e-8)")
-    p.add_argument("--max-emvps", type=float, default=5000.0, help="E-MVP budget per run")
-    p.add_argument("--baseline", default=None, metavar="FILE",
-                   help="baseline file (default problems/data/baselines.json)")
-    p.add_argument("--update-baseline", action="store_true",
-                   help="rewrite the baselines of the checked sets with this run's medians")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_check)
-
-
-def cmd_check(args) -> int:
-    """``lcpbench check``: exit 0 (no regression), 1 (regression) or 2 (usage/file error)."""
-    from lcpbench.sets import StoredSetError
-
-    try:
-        rows = check(args.set, tol=args.tol, baseline=args.baseline,
-                     update_baseline=args.update_baseline, solver_specs=args.solver,
-                     max_emvps=args.max_emvps, progress=not args.quiet)
-    except StoredSetError as exc:
-        print(f"lcpbench check: error: {exc}", file=sys.stderr)
-        return 2
-    if not rows:
-        print("lcpbench check: no shipped set to check (problems/data/*.h5); generate one with "
-              "lcpbench generate or pass --set FILE.h5")
-        return 0
-    print(format_table(rows))
-    bad = [r for r in rows if r.regressed]
-    new = [r for r in rows if r.baseline is None and not r.regressed]
-    base = args.baseline or default_baseline()
-    if args.update_baseline:
-        print(f"\nbaselines of {len({r.set for r in rows})} set(s) written to {base}")
-    elif new:
-        print(f"\n{len(new)} solver/set pair(s) have no baseline; record them with "
-              "lcpbench check --update-baseline")
-    if bad:
-        print(f"\n{len(bad)} of {len(rows)} solver/set pair(s) regressed", file=sys.stderr)
-        return 1
-    return 0
-
