@@ -9,7 +9,7 @@ or a folder of them (read in sorted order).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 from lcpbench import LCP, register_problem
 from lcpbench.core.specs import Bounds, CheckedParams
@@ -26,25 +26,35 @@ _Rtol = Annotated[float, Bounds(ge=0, finite=False)]
 
 
 @dataclass(frozen=True)
-class SiconosParams(CheckedParams):
-    """Parameters of siconos.
+class _FileParams(CheckedParams):
+    """Parameters of a family read from files.
 
     Parameters
     ----------
     path : str
-        A Siconos numerics LCP ``.dat`` file, or a folder of them (``*.dat``, sorted).
+        A file of the format, or a folder of them (read in sorted order).
     symmetrize_rtol : float
-        Largest relative asymmetry replaced by (A + A')/2 with a warning (default 0:
-        non-symmetric files raise).
+        Largest relative asymmetry replaced by the symmetric part, with a warning; a larger
+        one raises (the policy of ``lcpbench.problems.formats``).
     """
 
     path: str = ""
     symmetrize_rtol: _Rtol = 0.0
+    #: The family's spec with a file, for the "path is required" message.
+    example: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
         if not self.path:
-            raise ValueError("path is required: siconos:path=FILE.dat (or a folder)")
+            raise ValueError(f"path is required: {self.example} (or a folder)")
         super().__post_init__()
+
+
+@dataclass(frozen=True)
+class SiconosParams(_FileParams):
+    """Parameters of siconos: ``path`` is a Siconos numerics LCP ``.dat`` file or a folder of
+    them (``*.dat``); ``symmetrize_rtol`` defaults to 0, so non-symmetric files raise."""
+
+    example: ClassVar[str] = "siconos:path=FILE.dat"
 
 
 @register_problem("siconos", SiconosParams)
@@ -55,25 +65,12 @@ def siconos(p: SiconosParams) -> list[LCP]:
 
 
 @dataclass(frozen=True)
-class FclibParams(CheckedParams):
-    """Parameters of fclib.
+class FclibParams(_FileParams):
+    """Parameters of fclib: ``path`` is an FCLIB local problem (``.hdf5``/``.h5``) or a folder
+    of them; ``symmetrize_rtol`` (default 1e-6) applies to ``W_nn``."""
 
-    Parameters
-    ----------
-    path : str
-        An FCLIB local problem (``.hdf5``/``.h5``), or a folder of them (sorted).
-    symmetrize_rtol : float
-        Largest relative asymmetry of W_nn replaced by its symmetric part with a warning
-        (default 1e-6); larger asymmetry raises.
-    """
-
-    path: str = ""
     symmetrize_rtol: _Rtol = FCLIB_DEFAULT_SYMMETRIZE_RTOL
-
-    def __post_init__(self) -> None:
-        if not self.path:
-            raise ValueError("path is required: fclib:path=FILE.hdf5 (or a folder)")
-        super().__post_init__()
+    example: ClassVar[str] = "fclib:path=FILE.hdf5"
 
 
 @register_problem("fclib", FclibParams)

@@ -81,11 +81,10 @@ def read_fclib_local(path: PathLike, *,
     ----------
     path : str or Path
         The ``.hdf5`` file.
-    symmetrize_rtol : float
-        Largest relative asymmetry of ``W_nn`` that is symmetrised (with a warning);
-        above it ``ValueError`` (default 1e-6, module docstring).
-    psd_check : bool
-        Passed to :class:`~lcpbench.LCP`.
+    symmetrize_rtol, psd_check
+        The symmetry policy shared with the Siconos reader
+        (:func:`lcpbench.problems.formats.symmetric_lcp`) applied to ``W_nn``; here
+        ``symmetrize_rtol`` defaults to 1e-6 (module docstring).
 
     Returns
     -------

@@ -85,19 +85,18 @@ class _Cursor:
         self.tok += 1
         return t
 
-    def int(self, what: str) -> int:
+    def _number(self, what: str, convert, kind: str):
         t = self.token(what)
         try:
-            return int(t)
+            return convert(t)
         except ValueError:
-            raise self.fail(f"expected an integer for {what}, found {t!r}") from None
+            raise self.fail(f"expected {kind} for {what}, found {t!r}") from None
+
+    def int(self, what: str) -> int:
+        return self._number(what, int, "an integer")
 
     def float(self, what: str) -> float:
-        t = self.token(what)
-        try:
-            return float(t)
-        except ValueError:
-            raise self.fail(f"expected a number for {what}, found {t!r}") from None
+        return self._number(what, float, "a number")
 
     def next_line(self, what: str) -> str:
         """The rest of the current line is skipped; return the next whole line."""
@@ -241,11 +240,10 @@ def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
     ----------
     path : str or Path
         The ``.dat`` file.
-    symmetrize_rtol : float
-        Largest relative asymmetry replaced by the symmetric part (with a warning);
-        default 0: a non-symmetric matrix raises (module docstring).
-    psd_check : bool
-        Passed to :class:`~lcpbench.LCP`.
+    symmetrize_rtol, psd_check
+        The symmetry policy shared with the FCLIB reader
+        (:func:`lcpbench.problems.formats.symmetric_lcp`); here ``symmetrize_rtol``
+        defaults to 0, so a non-symmetric matrix raises (module docstring).
 
     Returns
     -------

@@ -208,11 +208,9 @@ def brenner_lambda(d_over_a: float, terms: int | None = None) -> float:
 
     Parameters
     ----------
-    d_over_a : float
-        Centre distance over radius, > 2.
-    terms : int, optional
-        Number of series terms. By default terms are added until one falls below 1e-16 of the
-        partial sum (about ``18 / alpha`` terms, ``alpha ~ sqrt(h / a)`` near contact).
+    d_over_a, terms
+        As for :func:`stimson_jeffery_lambda`; near contact the default takes about
+        ``18 / alpha`` terms, ``alpha ~ sqrt(h / a)``.
 
     Returns
     -------
@@ -232,15 +230,8 @@ def mobility_functions_along_axis(d_over_a: float) -> tuple[float, float]:
 
         A11 + A12 = 1 / lambda_SJ,     A11 - A12 = 1 / lambda_B.
 
-    Parameters
-    ----------
-    d_over_a : float
-        Centre distance over radius, > 2.
-
-    Returns
-    -------
-    tuple of float
-        ``(A11, A12)``, dimensionless (in units of ``1 / (6 pi mu a)``).
+    ``d_over_a`` is the centre distance over the radius (> 2); the result ``(A11, A12)`` is
+    dimensionless, in units of ``1 / (6 pi mu a)``.
     """
     m_sum = 1.0 / stimson_jeffery_lambda(d_over_a)
     m_diff = 1.0 / brenner_lambda(d_over_a)
@@ -510,10 +501,8 @@ def far_field_lambda(d_over_a: float, mode: str, order: int = 6) -> float:
     ----------
     d_over_a : float
         Centre distance over radius, > 2 (the series is asymptotic for ``d >> a``).
-    mode : {"together", "apart"}
-        Same velocities (Stimson-Jeffery) or opposite velocities (Brenner).
-    order : int
-        Highest power of ``a/d`` kept, 0..7.
+    mode, order
+        As for :func:`far_field_coefficients`.
 
     Returns
     -------

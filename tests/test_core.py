@@ -136,13 +136,7 @@ def test_a_lying_solver_is_caught_by_verification(lie, true_residual):
 
 @dataclass(frozen=True)
 class _GreedyParams:
-    """Parameters of the greedy solver.
-
-    Parameters
-    ----------
-    block : int
-        Columns per product.
-    """
+    """block: columns per product."""
 
     block: int = 1
 
@@ -165,13 +159,7 @@ def test_emvp_budget_is_enforced_by_the_operator(block):
 
 @dataclass(frozen=True)
 class _SleepyParams:
-    """Parameters of the sleepy solver.
-
-    Parameters
-    ----------
-    nap : float
-        Seconds per iteration.
-    """
+    """nap: seconds per iteration."""
 
     nap: float = 0.02
 

@@ -66,6 +66,7 @@ class Pairs:
         return len(self.S)
 
 
+
 @dataclass(frozen=True)
 class MonoOptions(CheckedParams):
     """Choices of a Mono-PQN level (documented on the solvers' parameters, ``mono-pqn``)."""
@@ -174,6 +175,16 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
+def product_and_step(apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray):
+    """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
+
+    Returns ``(Qp, z_new, G_new, eta)``; ``z_new`` is None when the quadratic is
+    unbounded along ``p``.
+    """
+    Qp = apply(p)
+    return (Qp, *optimal_step(z, G, p, Qp))
+
+
 def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.ndarray,
                stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
                opts: BiOptions, counters: Counters, *, seed: Optional[Pairs] = None,
@@ -221,8 +232,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         if p is None:
             reason = "stationary"
             break
-        Qp = apply(p)
-        z_new, G_new, eta = optimal_step(z, G, p, Qp)
+        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
         if z_new is None:
             reason = "unbounded"
             break
@@ -368,8 +378,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             Bp = None
         else:
             counters.decisions.append("model")
-        Qp = apply(p)
-        z_new, G_new, eta = optimal_step(z, G, p, Qp)
+        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
         if z_new is None:
             reason = "unbounded"
             break

@@ -61,10 +61,9 @@ def mobility(centers, radii, model: str = "bim", p: int = 8, eps_gmres: float = 
 
     Parameters
     ----------
-    centers : array_like, shape (M, 3)
-        Sphere centres.
-    radii : float or array_like, shape (M,)
-        One radius for all spheres or one per sphere.
+    centers, radii : array_like
+        Sphere centres ``(M, 3)`` and radii (one, or one per sphere), as
+        :func:`~lcpbench.problems.suspension.geometry.check_configuration` takes them.
     model : {"bim", "rpy"}, default "bim"
         ``"bim"``: boundary-integral solver (spheres must not overlap);
         ``"rpy"``: Rotne-Prager-Yamakawa with overlap corrections.
