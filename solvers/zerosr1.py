@@ -213,8 +213,11 @@ def zero_sr1(ctx: SolverContext, p: ZeroSR1Params) -> SolveResult:
             # H = t I + v v'; B = H^-1 = I/t - q q' with q = v / (t sqrt(1 + v'v / t))
             step = t * w + v * float(v @ w)
             q = v / (t * np.sqrt(1.0 + float(v @ v) / t))
-            if t * float(q @ q) < 1.0:          # B positive definite also in floating point
-                xn = prox_rank1_nonneg(x - step, np.full(n, 1.0 / t), q, -1.0)
+            d = np.full(n, 1.0 / t)
+            # B = diag(d) - q q' positive definite also in floating point: the very test the
+            # prox makes (q' d^-1 q < 1), so a B the prox would refuse is never handed to it
+            if float(q @ (q / d)) < 1.0:
+                xn = prox_rank1_nonneg(x - step, d, q, -1.0)
             else:                               # v'v >> t: rounding lost definiteness
                 ctx.info["skipped_rank1"] += 1
                 xn = np.maximum(x - t * w, 0.0)

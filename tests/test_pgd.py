@@ -8,7 +8,7 @@ from lcpbench.solvers.pgd import power_iteration
 from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 import lcpbench
-from lcpbench import LCP, Operator
+from lcpbench import LCP, Operator, Status
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params
 
@@ -184,3 +184,16 @@ def test_matrix_free_operator_gives_identical_iterates():
     op = Operator(lambda v: A @ v, shape=A.shape)
     free = lcpbench.solve(LCP(op, b), solver="bb-pgd")
     assert free.mvps == dense.mvps and np.allclose(free.x, dense.x, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_zero_sr1_never_hands_the_prox_an_indefinite_model(seed):
+    # diag_weight one ulp below 1 makes r'y ~ 1e-16 s'y, so v'v / t exceeds 2^53 and the
+    # rank-1 model B = I/t - q q' is indefinite in floating point. The solver must drop the
+    # rank-1 term for that iteration (counted) instead of failing inside the prox.
+    A, b = planted(40, seed=seed, cond=100)
+    res = lcpbench.solve(A, b, solver="zero-sr1:diag_weight=0.9999999999999999", stop="kkt",
+                         tol=1e-8, max_emvps=300)
+    assert res.status is not Status.failed, res.summary()
+    assert res.info["skipped_rank1"] > 0
+    assert res.status is not Status.converged or res.solved
