@@ -22,7 +22,7 @@ from lcpbench.core.context import Budget
 from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.cli.options import add_stop_options
 from lcpbench.report.render import render_report, stderr_progress
-from lcpbench.run.runner import (Plan, _problem_key, describe_counts, execute, git_commit,
+from lcpbench.run.runner import (Plan, describe_counts, execute, git_commit,
                                   machine_info, plan)
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep, load_config
@@ -124,7 +124,7 @@ def check_plan(p: Plan) -> None:
         names = requested_lows(run.solver.params)
         if not names:
             continue
-        lcp = p.instances[_problem_key(run.problem)][run.instance]
+        lcp = p.lcp(run)
         missing = [n for n in names if n not in lcp.low]
         if missing:
             raise ValueError(f"solver {run.solver.label!r}: no low fidelity {missing[0]!r} on "

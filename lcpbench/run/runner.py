@@ -55,6 +55,10 @@ class Plan:
     instances: dict[str, list[LCP]]
     skipped: list[str] = field(default_factory=list)
 
+    def lcp(self, run: RunSpec) -> LCP:
+        """The instance a run solves."""
+        return self.instances[_problem_key(run.problem)][run.instance]
+
 
 def _problem_key(spec: Spec) -> str:
     return spec.name + json.dumps(spec.params, sort_keys=True)
@@ -293,16 +297,15 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
               "timeout": 0, "false_convergence": 0}
     refs: dict[tuple, Optional[dict]] = {}
-    lcp_of = lambda run: p.instances[_problem_key(run.problem)][run.instance]  # noqa: E731
 
     def ref_of(run: RunSpec) -> Optional[dict]:
         key = (_problem_key(run.problem), run.instance)
         if key not in refs:
-            refs[key] = instance_reference(lcp_of(run), reference_max_n, timeout)
+            refs[key] = instance_reference(p.lcp(run), reference_max_n, timeout)
         return refs[key]
 
     def local_work(run: RunSpec):
-        return _safe_perform(run, lcp_of(run), ref_of(run), timeout)
+        return _safe_perform(run, p.lcp(run), ref_of(run), timeout)
 
     if kind == "dask":
         work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n)
@@ -329,7 +332,7 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     def failure(run: RunSpec, status: str, message: str,
                 elapsed: Optional[float] = None) -> dict:
-        return _failure_row(run, lcp_of(run), status, message, elapsed)
+        return _failure_row(run, p.lcp(run), status, message, elapsed)
 
     try:
         runner.run(todo, work, failure, record)
