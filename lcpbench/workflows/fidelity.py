@@ -163,17 +163,6 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
     return df.drop(columns="_eps").reset_index(drop=True)
 
 
-def _names_a_set_file(row, shipped: dict) -> bool:
-    """True when a result row's problem parameters name an ``.h5`` file or a shipped set."""
-    try:
-        params = json.loads(row.get("problem_params") or "{}")
-    except (TypeError, ValueError):
-        params = {}
-    if not isinstance(params, dict):
-        return False
-    return any(str(v).endswith(".h5") or str(v) in shipped for v in params.values())
-
-
 def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None]]:
     """The stored sets a run store's results used: ``[(path, instance ids or None)]``.
 
@@ -196,15 +185,18 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
     for _, row in results[cols].drop_duplicates().iterrows():
         problem = str(row["problem"])
         kind = problem.split(":", 1)[0]
-        if kind not in by_problem and not _names_a_set_file(row, shipped):
-            continue
         try:
             params = json.loads(row.get("problem_params") or "{}")
         except (TypeError, ValueError):
             params = {}
+        if not isinstance(params, dict):
+            params = {}
         if not params and ":" in problem:
             params = dict(kv.split("=", 1) for kv in problem.split(":", 1)[1].split(",")
                           if "=" in kv)
+        names_a_set = any(str(v).endswith(".h5") or str(v) in shipped for v in params.values())
+        if kind not in by_problem and not names_a_set:
+            continue
         name = str(params.get("path") or params.get("name") or by_problem.get(kind, ""))
         if not name:
             continue
