@@ -36,8 +36,8 @@ def run_set(solver: str, lcps, tol: float = 1e-8) -> dict:
 
 def solver_names(*, mvp_only: bool) -> list[str]:
     """Registered solvers (test doubles excluded); only MVP-only non-reference ones if asked."""
-    return sorted(n for n, i in solvers().items() if not n.startswith("test-")
-                  and (not mvp_only or (i.mvp_only and not i.reference)))
+    return sorted(n for n, i in solvers().items()
+                  if i.listed and (not mvp_only or (i.mvp_only and not i.reference)))
 
 
 def applicable(solver: str, lcps) -> bool:

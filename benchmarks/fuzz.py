@@ -181,8 +181,8 @@ def make_case(i: int, seed: int = 0, family: str = "classic") -> lcpbench.LCP:
 
 
 def mvp_solvers() -> list[str]:
-    return sorted(n for n, s in solvers().items() if s.mvp_only and not s.reference
-                  and not n.startswith("test-"))
+    return sorted(n for n, s in solvers().items()
+                  if s.listed and s.mvp_only and not s.reference)
 
 
 def classify(res: lcpbench.SolveResult, solvable: bool) -> str:

@@ -37,7 +37,7 @@ def _instances(family):
 
 
 def _all_solvers():
-    return sorted(n for n in solvers() if not n.startswith("test-"))
+    return sorted(n for n, info in solvers().items() if info.listed)
 
 
 def _spec_for(solver, lcp):

@@ -74,3 +74,31 @@ def test_no_framework_code_names_a_plugin():
                 if name in plugin_names and (text == name or ":" in text) and " " not in text:
                     bad.append(f"{path.relative_to(FRAMEWORK)}:{node.lineno} names {text!r}")
     assert not bad, "\n".join(bad)
+
+
+def test_an_unlisted_solver_runs_by_name_but_joins_no_default(capsys):
+    from dataclasses import dataclass
+
+    import numpy as np
+
+    from lcpbench import register_solver
+    from lcpbench.cli import main
+    from lcpbench.run.sweep import default_sweep
+    from lcpbench.workflows.check import default_specs
+
+    @dataclass(frozen=True)
+    class _Params:
+        """No parameters."""
+
+    @register_solver("test-unlisted", _Params, listed=False)
+    def _unlisted(ctx, p):
+        """Returns the start."""
+        x = np.zeros(ctx.n)
+        return ctx.finish(x, ctx.A @ x + ctx.b)
+
+    res = lcpbench.solve(np.eye(2), np.ones(2), solver="test-unlisted")
+    assert res.solved                                  # runnable by name
+    assert "test-unlisted" not in default_sweep()[0]
+    assert not any(s.startswith("test-unlisted") for s in default_specs(["low"]))
+    assert main(["list", "solvers", "--brief"]) == 0
+    assert "test-unlisted" not in capsys.readouterr().out

@@ -16,8 +16,7 @@ from lcpbench import LCP, Status
 from lcpbench.problems.random import with_perturbed_lows
 
 SOLVERS = sorted(name for name, info in lcpbench.list_solvers().items()
-                 if not info.needs_dense and not info.reference
-                 and not name.startswith("test-"))
+                 if not info.needs_dense and not info.reference and info.listed)
 
 
 @st.composite

@@ -243,7 +243,8 @@ def load_config(path: str) -> dict:
 
 
 def default_sweep() -> tuple[list[str], list[str]]:
-    """Every registered MVP-only solver and reference solver, on the default problems."""
-    sv = [name for name, info in sorted(solvers().items()) if info.mvp_only or info.reference]
+    """Every listed MVP-only solver and reference solver, on the default problems."""
+    sv = [name for name, info in sorted(solvers().items())
+          if info.listed and (info.mvp_only or info.reference)]
     pb = [name for name, info in sorted(problems().items()) if info.default]
     return sv, pb
