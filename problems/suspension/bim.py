@@ -71,16 +71,17 @@ truth near contact.
 
 from __future__ import annotations
 
+import functools
 import warnings
-from collections import deque
-
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
 
 from .bim_adjoint import AdjointPieces
-from .bim_gmres import relaxed_gmres
+from .bim_gmres import _threadpools, relaxed_gmres
 from .bim_pairs import RELAX_STEP, PairPlan
+from .bim_recycle import RecycledGCR, default_capacity, solve_together
 from .geometry import check_configuration, check_no_overlap, check_viscosity
+from .kernels_adjoint import apply_blocks_both, apply_blocks_both_serial
 from .kernels import (
     PARALLEL_WORK,
     apply_blocks,
@@ -121,6 +122,18 @@ class BimConvergenceWarning(RuntimeWarning):
     """GMRES stopped before reaching the requested tolerance."""
 
 
+def _one_blas_thread(method):
+    """Run a product with BLAS on one thread: its dense per-sphere products are small, and
+    beside the parallel compiled kernels a threaded BLAS is many times slower on a loaded
+    machine (measured 45 ms against 1.5 ms for the one-body preconditioner of 27 spheres
+    at p = 8).  Entering the limit costs about 10 microseconds."""
+    @functools.wraps(method)
+    def wrapped(self, *args, **kwargs):
+        with _threadpools().limit(limits=1, user_api="blas"):
+            return method(self, *args, **kwargs)
+    return wrapped
+
+
 def _check_p(p) -> int:
     if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or p < 1:
         raise ValueError(f"p = {p!r} must be an integer >= 1 (the spherical-harmonic order; "
@@ -137,18 +150,6 @@ def _check_eps(eps) -> float:
         raise ValueError(f"eps_gmres = {eps!r} must be a finite number in (0, 1), "
                          "e.g. 1e-8 (relative GMRES residual)")
     return e
-
-
-def _recycled_start(history: deque, b: np.ndarray, correct) -> np.ndarray:
-    """Warm start of a solve with right-hand side ``b``: the least-squares combination of
-    the stored ``(solution, right-hand side)`` pairs, plus ``correct`` (a one-body
-    approximate inverse) of the part of ``b`` they do not reach."""
-    if not history:
-        return correct(b)
-    Bk = np.stack([h[1] for h in history], axis=1)
-    Sk = np.stack([h[0] for h in history], axis=1)
-    alpha = np.linalg.lstsq(Bk, b, rcond=None)[0]
-    return Sk @ alpha + correct(b - Bk @ alpha)
 
 
 class BimMobility(LinearOperator):
@@ -171,8 +172,13 @@ class BimMobility(LinearOperator):
         What to do when GMRES does not reach ``eps_gmres``: warn with
         :class:`BimConvergenceWarning` (the result is still returned) or raise
         ``RuntimeError``.  Both report the reached residual.
-    recycle : int
-        Number of previous solutions kept for the warm start.
+    recycle : int, optional
+        Krylov directions kept from solve to solve, for the forward and for the
+        transposed equation each (:mod:`bim_recycle`): later solves start from the
+        projection onto them and add directions only for what is left, at full accuracy
+        (no relaxation), ending with one true-residual check.  Default: as many as fit
+        in 256 MB per equation.  0 turns recycling off: every solve is relaxed restarted
+        GMRES from the one-body approximation (:func:`bim_gmres.relaxed_gmres`).
     maxiter : int
         Maximum total number of GMRES iterations per product.
     near_block_mb : float
@@ -220,7 +226,7 @@ class BimMobility(LinearOperator):
     """
 
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
-                 mu: float = 1.0, on_failure: str = "warn", recycle: int = 8,
+                 mu: float = 1.0, on_failure: str = "warn", recycle: int | None = None,
                  maxiter: int = 500, near_block_mb: float = 2048.0,
                  quad_tol: float | None = None, far: str = "direct",
                  near_upsample: float = _NEAR_UPSAMPLE) -> None:
@@ -275,10 +281,15 @@ class BimMobility(LinearOperator):
         self._near_proj = (None if q_near == self.p           # plain node sampling
                            else projection_matrix(self.p, q_near))
         self._setup_interactions()
-        self._history: deque = deque(maxlen=max(int(recycle), 0))
+        n = M * 3 * N
+        cap = default_capacity(n) if recycle is None else max(int(recycle), 0)
+        self.recycle = cap
+        self._recycler = (RecycledGCR(lambda v: self._apply_bie(self._precondition(v)), n, cap,
+                                      _threadpools()) if cap else None)
+        self._adj_recycler = (RecycledGCR(lambda v: self.adjoint_pieces.operator(v), n, cap,
+                                          _threadpools()) if cap else None)
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
-        self._adj_history: deque = deque(maxlen=max(int(recycle), 0))
         self.adjoint_iterations: list[int] = []
         self.adjoint_residuals: list[float] = []
 
@@ -291,6 +302,9 @@ class BimMobility(LinearOperator):
         for name in _SUMMARY:
             setattr(self, name, getattr(self.plan, name))
         self._pieces: AdjointPieces | None = None     # built on first use
+        for rec in (getattr(self, "_recycler", None), getattr(self, "_adj_recycler", None)):
+            if rec is not None:                       # kept directions of the old operator
+                rec.clear()
 
     # ---- the boundary integral operator -------------------------------------------------
     def _source_forces(self, s: np.ndarray, coef: np.ndarray) -> list[np.ndarray]:
@@ -317,9 +331,22 @@ class BimMobility(LinearOperator):
     def _apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
         """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities, with the
         quadrature between spheres accurate to ``tolerance_ladder[rung]``."""
+        out, coef = self._apply_bie_unblocked(sigma, rung)
+        plan = self.plan
+        if coef is not None and plan.n_block_pairs:
+            fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
+            fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out)
+        return out.reshape(-1)
+
+    def _apply_bie_unblocked(self, sigma: np.ndarray, rung: int = 0
+                             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`_apply_bie` without the stored near blocks: ``(out, coef)`` with ``out``
+        of shape ``(M, 3N)`` and ``coef`` the VSH coefficients the blocks act on (None for
+        one sphere)."""
         M, N, p, plan = self.M, self._N, self.p, self.plan
         s = np.ascontiguousarray(sigma.reshape(M, 3 * N))
         out = dense_rows(s, self._self_block)
+        coef = None
         if M > 1:
             coef = dense_rows(s, self._analysis_T)
             trac = np.zeros((M * N, 3))
@@ -350,10 +377,7 @@ class BimMobility(LinearOperator):
                                          ptr, start, stop, *plan.src_xyz, *f, sub, True)
                     trac -= sub
             out += trac.reshape(M, 3 * N)
-            if plan.n_block_pairs:
-                fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
-                fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out)
-        return out.reshape(-1)
+        return out, coef
 
     def _near_on_the_fly(self, s: np.ndarray) -> np.ndarray:
         """Near-field traction of the projected-zone expansion pairs without a stored
@@ -410,14 +434,28 @@ class BimMobility(LinearOperator):
             self.gmres_iterations.append(0)
             self.residuals.append(0.0)
             return np.zeros_like(b)
-        y0 = self._unprecondition(_recycled_start(self._history, b, self._precondition))
+        if self._recycler is not None:
+            return self._precondition(self._recycled_solve("BIM GMRES", self._recycler, b,
+                                                           self.gmres_iterations,
+                                                           self.residuals))
+        y0 = self._unprecondition(self._precondition(b))
         y = self._solve("BIM GMRES", lambda v, k: self._apply_bie(self._precondition(v), k),
                         b, y0, len(self.plan.dir_ranges), self.gmres_iterations,
                         self.residuals)
-        sigma = self._precondition(y)
-        if self._history.maxlen:
-            self._history.append((sigma, b))
-        return sigma
+        return self._precondition(y)
+
+    def _recycled_solve(self, what: str, solver: RecycledGCR, b: np.ndarray,
+                        iterations: list, residuals: list) -> np.ndarray:
+        """:meth:`RecycledGCR.solve` to ``eps_gmres`` within ``maxiter`` new directions;
+        records the iterations (new directions plus the residual checks: the products
+        made) and the true residual, and reports non-convergence (:meth:`_report`)."""
+        before = solver.products
+        y, _new, res = solver.solve(b, self.eps_gmres, self.maxiter)
+        its = solver.products - before
+        iterations.append(its)
+        residuals.append(res)
+        self._report(what, res, its)
+        return y
 
     def _report(self, what: str, res: float, its: int) -> None:
         """Warn (or raise, ``on_failure="raise"``) when a solve's full-accuracy relative
@@ -444,12 +482,84 @@ class BimMobility(LinearOperator):
             center_readout(self.centers, self.radii, D, self.p, self.mu, out)
         return out
 
+    @_one_blas_thread
     def _matvec(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float).reshape(-1)
-        if not np.isfinite(x).all():
-            raise ValueError("forces/torques contain NaN or inf; pass finite values")
+        x = self._checked_loads(x, "forces/torques")
         sigma = self.solve_density(x)
         return self.velocities(sigma).reshape(-1)
+
+    # ---- both products at once -----------------------------------------------------------
+    def _apply_pair(self, u_f: np.ndarray, u_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``G u_f`` and ``G' u_a`` (the preconditioned operator and its transpose, full
+        accuracy) with one pass over the stored near blocks, which bound the cost of a
+        product by memory traffic when they are many."""
+        pieces = self.adjoint_pieces
+        out, coef = self._apply_bie_unblocked(self._precondition(u_f))
+        out_a, coef_bar, ob = pieces.apply_bie_unblocked(u_a)
+        plan = self.plan
+        if coef is not None and coef_bar is not None:
+            if plan.n_block_pairs:
+                part = np.empty((plan.block_src.size, coef.shape[1]))
+                fn = (apply_blocks_both if plan.blocks.size > PARALLEL_WORK
+                      else apply_blocks_both_serial)
+                fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out, ob, part)
+                np.add.at(coef_bar, plan.block_src, part)
+            out_a += dense_rows(coef_bar, pieces.analysis)
+        return out.reshape(-1), pieces.precondition(out_a.reshape(-1))
+
+    @_one_blas_thread
+    def matvec_rmatvec(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(M x, M' y)``: the forward and the transposed product together.
+
+        With recycling on (the default) the two solves run in lock step
+        (:func:`bim_recycle.solve_together`), so that while both need products every
+        round reads the stored near blocks once for both; the answers are those of
+        ``matvec`` and ``rmatvec`` (same tolerance, same kept directions).  This is the
+        product of the explicitly symmetrised contact operator (:mod:`.contacts`).
+
+        Raises
+        ------
+        ValueError
+            If ``x`` or ``y`` does not have 6M finite entries.
+        """
+        x = self._checked_loads(x, "forces/torques")
+        y = self._checked_loads(y, "velocities passed to rmatvec")
+        if self._recycler is None or self._adj_recycler is None:
+            return self._matvec(x), self._rmatvec(y)
+        pieces = self.adjoint_pieces
+        b = self.rhs(x)
+        z = pieces.precondition(pieces.velocities(y))
+        fwd, adj = self._recycler, self._adj_recycler
+
+        def apply_many(vs: list) -> list:
+            if vs[0] is not None and vs[1] is not None:
+                return list(self._apply_pair(vs[0], vs[1]))
+            return [None if vs[0] is None else fwd.apply(vs[0]),
+                    None if vs[1] is None else adj.apply(vs[1])]
+
+        before = (fwd.products, adj.products)
+        (yf, _, rf), (wa, _, ra) = solve_together([(fwd, b), (adj, z)], apply_many,
+                                                  self.eps_gmres, self.maxiter)
+        for what, its, res, itl, rl in (
+                ("BIM GMRES", fwd.products - before[0], rf, self.gmres_iterations,
+                 self.residuals),
+                ("BIM adjoint GMRES", adj.products - before[1], ra, self.adjoint_iterations,
+                 self.adjoint_residuals)):
+            itl.append(its)
+            rl.append(res)
+            self._report(what, res, its)
+        u = self.velocities(self._precondition(yf)).reshape(-1)
+        return u, pieces.rhs(wa)
+
+    def _checked_loads(self, v, what: str) -> np.ndarray:
+        v = np.asarray(v, dtype=float).reshape(-1)
+        if v.size != 6 * self.M:
+            raise ValueError(f"{what} have {v.size} entries; a mobility of {self.M} spheres "
+                             f"needs {6 * self.M} (6 per sphere: force then torque, or "
+                             "velocity then rotation)")
+        if not np.isfinite(v).all():
+            raise ValueError(f"{what} contain NaN or inf; pass finite values")
+        return v
 
     # ---- the transposed (adjoint) product ------------------------------------------------
     @property
@@ -470,14 +580,14 @@ class BimMobility(LinearOperator):
             self.adjoint_iterations.append(0)
             self.adjoint_residuals.append(0.0)
             return np.zeros_like(z)
+        if self._adj_recycler is not None:
+            return self._recycled_solve("BIM adjoint GMRES", self._adj_recycler, z,
+                                        self.adjoint_iterations, self.adjoint_residuals)
         pieces = self.adjoint_pieces
-        w = self._solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z,
-                        _recycled_start(self._adj_history, z, lambda v: v), 1,
-                        self.adjoint_iterations, self.adjoint_residuals)
-        if self._adj_history.maxlen:
-            self._adj_history.append((w, z))
-        return w
+        return self._solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z, z.copy(), 1,
+                           self.adjoint_iterations, self.adjoint_residuals)
 
+    @_one_blas_thread
     def _rmatvec(self, y: np.ndarray) -> np.ndarray:
         """Exact transpose of the discrete mobility: ``M' y = Bt' G^{-T} P' R' y``.
 
@@ -499,12 +609,7 @@ class BimMobility(LinearOperator):
         ValueError
             If ``y`` does not have 6M entries or contains NaN or inf.
         """
-        y = np.asarray(y, dtype=float).reshape(-1)
-        if y.size != 6 * self.M:
-            raise ValueError(f"rmatvec needs {6 * self.M} velocities (U, Omega per sphere), "
-                             f"got {y.size}")
-        if not np.isfinite(y).all():
-            raise ValueError("velocities passed to rmatvec contain NaN or inf; pass finite values")
+        y = self._checked_loads(y, "velocities passed to rmatvec")
         pieces = self.adjoint_pieces
         z = pieces.precondition(pieces.velocities(y))
         return pieces.rhs(self.solve_adjoint(z))

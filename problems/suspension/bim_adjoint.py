@@ -176,10 +176,27 @@ class AdjointPieces:
         (:func:`fmm_traction_adjoint`, same tolerance) and the native-grid pairs the forward
         product removes are removed by transposed direct sums, so the adjoint matches the
         forward to the FMM tolerance."""
+        out, coef_bar, ob = self.apply_bie_unblocked(w)
+        plan = self.op.plan
+        if coef_bar is not None:
+            if plan.n_block_pairs:
+                fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
+                      else apply_blocks_adjoint_serial)
+                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt, ob, coef_bar)
+            out += dense_rows(coef_bar, self.analysis)
+        return out.reshape(-1)
+
+    def apply_bie_unblocked(self, w: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """:meth:`apply_bie` without the stored blocks and the final synthesis:
+        ``(out, coef_bar, ob)`` with ``out`` of shape ``(M, 3N)``, ``coef_bar`` the adjoint
+        VSH coefficients gathered so far (None for one sphere; the caller adds the blocks'
+        share and then ``coef_bar @ analysis`` to ``out``) and ``ob = w`` as ``(M, 3N)``."""
         op, plan = self.op, self.op.plan
         M, N = op.M, plan.N
         ob = np.ascontiguousarray(np.asarray(w, dtype=float).reshape(M, 3 * N))
         out = dense_rows(ob, self.self_block)
+        coef_bar = None
         if M > 1:
             coef_bar = np.zeros((M, self.analysis.shape[0]))
             if plan.fly_idx.size or plan.flyn_idx.size:
@@ -206,12 +223,7 @@ class AdjointPieces:
                         f_bar[k][b0:b0 + M * N] += fb[:, k]
                         f_bar[k] -= sub[k]
                 self._source_forces(f_bar, out, coef_bar)
-            if plan.n_block_pairs:
-                fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
-                      else apply_blocks_adjoint_serial)
-                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt, ob, coef_bar)
-            out += dense_rows(coef_bar, self.analysis)
-        return out.reshape(-1)
+        return out, coef_bar, ob
 
     def precondition(self, z: np.ndarray) -> np.ndarray:
         """Transpose of the one-body preconditioner ``P``."""

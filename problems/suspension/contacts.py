@@ -265,13 +265,27 @@ def _apply_adjoint(M: LinearOperator, v: np.ndarray) -> np.ndarray:
     return np.asarray(M.rmatvec(v), dtype=np.float64).reshape(-1)
 
 
+def _forward_and_adjoint(M: LinearOperator, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(M f, M' f)``, in one call when the operator makes both together
+    (``BimMobility.matvec_rmatvec``: the two solves in lock step)."""
+    both = getattr(M, "matvec_rmatvec", None)
+    if both is None:
+        return _apply(M, f), _apply_adjoint(M, f)
+    u, ua = both(f, f)
+    return (np.asarray(u, dtype=np.float64).reshape(-1),
+            np.asarray(ua, dtype=np.float64).reshape(-1))
+
+
 def _symmetrized(M: LinearOperator, D: sp.csc_matrix, Dt: sp.csr_matrix, v: np.ndarray,
                  forward: Optional[np.ndarray] = None) -> np.ndarray:
     """``D' (M + M') D v / 2``: the explicitly symmetrised contact operator (one forward
     and one adjoint mobility solve; ``forward`` = ``M D v`` when already known)."""
     Dv = D @ v
-    u = _apply(M, Dv) if forward is None else forward
-    return Dt @ (0.5 * (u + _apply_adjoint(M, Dv)))
+    if forward is None:
+        u, ua = _forward_and_adjoint(M, Dv)
+    else:
+        u, ua = forward, _apply_adjoint(M, Dv)
+    return Dt @ (0.5 * (u + ua))
 
 
 def needs_symmetrizing(model: MobilityModel) -> bool:
@@ -297,18 +311,26 @@ class _DMD:
         self.symmetrize = bool(symmetrize)
         self.solves = 0
 
+    def _cached(self, v: np.ndarray) -> Optional[np.ndarray]:
+        for key, u in reversed(self._cache):
+            if key.shape == v.shape and np.array_equal(key, v):
+                return u
+        return None
+
+    def _remember(self, v: np.ndarray, u: np.ndarray) -> None:
+        self._cache.append((v.copy(), u))
+        del self._cache[:-self._size]
+
     def velocity(self, v: np.ndarray) -> np.ndarray:
         """``M D v``: from the cache when ``v`` was applied before, else one solve."""
         v = np.asarray(v, dtype=np.float64).reshape(-1)
         if not np.any(v):
             return np.zeros(self.D.shape[0])
-        for key, u in reversed(self._cache):
-            if key.shape == v.shape and np.array_equal(key, v):
-                return u.copy()
-        u = _apply(self.M, self.D @ v)
-        self.solves += 1
-        self._cache.append((v.copy(), u))
-        del self._cache[:-self._size]
+        u = self._cached(v)
+        if u is None:
+            u = _apply(self.M, self.D @ v)
+            self.solves += 1
+            self._remember(v, u)
         return u.copy()
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
@@ -317,8 +339,14 @@ class _DMD:
         v = np.asarray(v, dtype=np.float64).reshape(-1)
         if not np.any(v):
             return np.zeros(self.D.shape[1])
-        self.solves += 1                                  # the adjoint solve
-        return _symmetrized(self.M, self.D, self.Dt, v, forward=self.velocity(v))
+        u = self._cached(v)
+        if u is not None:
+            self.solves += 1                              # the adjoint solve
+            return _symmetrized(self.M, self.D, self.Dt, v, forward=u)
+        u, ua = _forward_and_adjoint(self.M, self.D @ v)  # both solves, together
+        self.solves += 2
+        self._remember(v, u)
+        return self.Dt @ (0.5 * (u + ua))
 
     def operator(self) -> LinearOperator:
         n = self.D.shape[1]

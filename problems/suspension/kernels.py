@@ -229,21 +229,6 @@ def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_s
 # BLAS threads and numba threads then spin against each other (measured: a 27 x 432 x 432
 # product 100x slower right after a parallel numba call).  These loops avoid that.
 
-def _rows_times_impl(X: np.ndarray, W: np.ndarray, out: np.ndarray) -> None:
-    """``out[r] += X[r] @ W`` for every row r (parallel over rows)."""
-    R, n = X.shape
-    m = W.shape[1]
-    for r in prange(R):
-        acc = np.zeros(m)
-        for k in range(n):
-            x = X[r, k]
-            if x != 0.0:
-                for j in range(m):
-                    acc[j] += x * W[k, j]
-        for j in range(m):
-            out[r, j] += acc[j]
-
-
 def _apply_blocks_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray, coef: np.ndarray,
                  out: np.ndarray) -> None:
     """``out[i] += sum_k E[k] @ coef[src[k]]`` over the blocks ``k`` in
@@ -289,8 +274,6 @@ def _synthesize_forces_impl(coef: np.ndarray, spheres: np.ndarray, BT: np.ndarra
 
 
 # Parallel and serial builds of the same loops (see PARALLEL_WORK).
-rows_times = njit(parallel=True, fastmath=True, cache=True)(_rows_times_impl)
-rows_times_serial = njit(fastmath=True, cache=True)(_rows_times_impl)
 apply_blocks = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_impl)
 apply_blocks_serial = njit(fastmath=True, cache=True)(_apply_blocks_impl)
 synthesize_forces = njit(parallel=True, fastmath=True, cache=True)(_synthesize_forces_impl)
@@ -301,9 +284,11 @@ direct_traction_skip = njit(parallel=True, fastmath=False, cache=True)(_direct_t
 
 
 def dense_rows(X: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """``X @ W`` for the small dense products of every product, in compiled loops (no BLAS
-    threads), in parallel over the rows of ``X`` when the work is large."""
-    out = np.zeros((X.shape[0], W.shape[1]))
-    fn = rows_times if X.size * W.shape[1] > PARALLEL_WORK else rows_times_serial
-    fn(np.ascontiguousarray(X), W, out)
-    return out
+    """``X @ W`` for the small dense products of every product (per-sphere self operators,
+    preconditioner, spherical-harmonic analysis and synthesis) by BLAS.  Inside the
+    solves BLAS runs on one thread (the solvers hold it there with threadpoolctl, beside
+    the parallel compiled kernels).  Measured on 27 spheres at p = 8 (a 27 x 432 by
+    432 x 432 product), one-thread BLAS took 0.3 ms where the compiled row loop that
+    did this before took 12.7 ms on the loaded 2-core machine
+    (``benchmarks/live_operator.py``, docs/benchmarks.md)."""
+    return np.ascontiguousarray(X) @ W

@@ -18,7 +18,8 @@ from .kernels import point_force_weight
 
 __all__ = ["unit_field_adjoint", "traction_expansion_adjoint", "center_readout_adjoint",
            "direct_traction_adjoint", "direct_traction_adjoint_serial",
-           "direct_traction_adjoint_skip", "apply_blocks_adjoint", "apply_blocks_adjoint_serial"]
+           "direct_traction_adjoint_skip", "apply_blocks_adjoint", "apply_blocks_adjoint_serial",
+           "apply_blocks_both", "apply_blocks_both_serial"]
 
 @njit(cache=True, fastmath=False)
 def unit_field_adjoint(xi: np.ndarray, p: int, I: np.ndarray, wu: np.ndarray, wG: np.ndarray,
@@ -227,8 +228,40 @@ def _apply_blocks_adjoint_impl(E: np.ndarray, src_ptr: np.ndarray, order: np.nda
             coef_bar[j, b] += acc[b]
 
 
+def _apply_blocks_both_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray,
+                            coef: np.ndarray, out: np.ndarray, out_bar: np.ndarray,
+                            part_bar: np.ndarray) -> None:
+    """:func:`kernels.apply_blocks` and its transpose in one pass over the blocks:
+    ``out[i] += E[k] @ coef[src[k]]`` and ``part_bar[k] = E[k]^T out_bar[i]`` for the
+    blocks ``k`` in ``range(tgt_ptr[i], tgt_ptr[i+1])``.  The blocks are read from memory
+    once for both products (the products are memory bound); the caller adds
+    ``part_bar[k]`` to the adjoint coefficients of sphere ``src[k]``."""
+    M = tgt_ptr.size - 1
+    rows = E.shape[1]
+    nv = E.shape[2]
+    for i in prange(M):
+        acc = np.zeros(rows)
+        for k in range(tgt_ptr[i], tgt_ptr[i + 1]):
+            c = coef[src[k]]
+            pk = part_bar[k]
+            for b in range(nv):
+                pk[b] = 0.0
+            for a in range(rows):
+                s = 0.0
+                x = out_bar[i, a]
+                for b in range(nv):
+                    e = E[k, a, b]
+                    s += e * c[b]
+                    pk[b] += e * x
+                acc[a] += s
+        for a in range(rows):
+            out[i, a] += acc[a]
+
+
 direct_traction_adjoint = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_adjoint_impl)
 direct_traction_adjoint_serial = njit(fastmath=True, cache=True)(_direct_traction_adjoint_impl)
 direct_traction_adjoint_skip = njit(parallel=True, fastmath=False, cache=True)(_direct_traction_adjoint_impl)
 apply_blocks_adjoint = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_adjoint_impl)
 apply_blocks_adjoint_serial = njit(fastmath=True, cache=True)(_apply_blocks_adjoint_impl)
+apply_blocks_both = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_both_impl)
+apply_blocks_both_serial = njit(fastmath=True, cache=True)(_apply_blocks_both_impl)

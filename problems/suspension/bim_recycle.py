@@ -1,0 +1,261 @@
+"""Krylov subspace recycling for the many solves with one boundary-integral operator.
+
+Every counted product of the contact operator solves the traction equation ``G y = b``
+(and, symmetrised, the transposed equation) with the same ``G`` and a new right-hand
+side.  The right-hand sides of one configuration live in a space of dimension at most
+6M (forces and torques), and the LCP's products in the much smaller space of its
+contacts, so the directions one solve has built are most of what the next one needs.
+:class:`RecycledGCR` keeps them: it is GCR (generalized conjugate residuals, Eisenstat,
+Elman and Schultz 1983) whose search directions ``U`` and their images ``C = G U``
+(orthonormal columns) are kept from solve to solve, the "recycled" space of Parks, de
+Sturler et al. (GCRO-DR, SIAM J. Sci. Comput. 2006) with no truncation while memory
+allows.  A new solve starts from the projection onto the kept space, ``y0 = U C' b``
+with residual ``(I - C C') b``, and adds directions only for what is left; once the
+kept space contains the right-hand sides of every contact, solves need no new product
+at all.
+
+GCR with every direction kept is GMRES in exact arithmetic (the same minimal residual
+over the same Krylov space).  Its residual is a recurrence, ``r = b - C a``.  The products
+are made at full accuracy (no relaxation), so every kept image is a product of the same
+deterministic linear map that ``y`` is applied to, and the recurrence differs from the
+true residual ``b - G y`` only by the rounding of the orthogonalisation, bounded by a few
+machine epsilons times the number of directions times the sum of the coefficients.  A
+solve measures the true residual with one more product when that bound is not far below
+the tolerance, or when it stops without converging (budget, stagnation), and then folds
+the measured residual back and goes on; the residual it reports is the measured one or,
+when the bound allowed skipping the check, the recurrence within that bound.
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+from typing import Callable
+
+import numpy as np
+from threadpoolctl import ThreadpoolController
+
+__all__ = ["RecycledGCR", "default_capacity", "solve_together"]
+
+_BREAKDOWN = 1e-14
+"""A new image ``G u`` whose part outside the kept space is below this fraction of its
+norm adds nothing: the solve stops adding directions (lucky breakdown or stagnation)."""
+
+
+_ROUNDING = 64 * np.finfo(np.float64).eps
+"""Rounding drift of the residual recurrence per direction and unit coefficient: the images
+``C`` are products of the same deterministic linear map as the one applied to ``y``, so
+``b - G y`` and the recurrence ``r`` differ only by the rounding of the orthogonalisation
+and the updates, at most about this times (directions) x (sum of |coefficients|)."""
+
+_MAX_CHECKS = 5
+"""True-residual checks per solve at most: a recurrence refuted this often is not going
+to agree with the operator (the caller reports the measured residual)."""
+
+
+def default_capacity(n: int, megabytes: float = 256.0) -> int:
+    """Directions a kept space of vectors of length ``n`` may hold within ``megabytes``
+    (two float64 vectors per direction)."""
+    return max(0, int(megabytes * 1e6 // (16 * max(int(n), 1))))
+
+
+class RecycledGCR:
+    """GCR for ``G y = b`` that keeps its directions across solves.
+
+    Parameters
+    ----------
+    apply : callable
+        ``apply(v) -> G v`` at full accuracy (a 1-D float array of the same length).
+    n : int
+        Length of the unknowns.
+    capacity : int
+        Most directions kept (the oldest are dropped first); 0 keeps nothing, so every
+        solve is plain restarted-free GCR (GMRES) from zero.
+    threads : ThreadpoolController, optional
+        Used to hold BLAS to one thread during the orthogonalisation (the products run
+        compiled parallel kernels; threaded BLAS beside them is slower on few cores).
+
+    Attributes
+    ----------
+    size : int
+        Directions kept now.
+    products : int
+        Products of ``G`` made so far (iterations and residual checks).
+    """
+
+    def __init__(self, apply: Callable[[np.ndarray], np.ndarray], n: int, capacity: int,
+                 threads: ThreadpoolController | None = None) -> None:
+        self.apply = apply
+        self.n = int(n)
+        self.capacity = max(0, int(capacity))
+        self._threads = threads
+        self._U = np.empty((0, self.n))
+        self._C = np.empty((0, self.n))
+        self.products = 0
+
+    @property
+    def size(self) -> int:
+        return int(self._C.shape[0])
+
+    def clear(self) -> None:
+        """Forget the kept directions (the operator changed)."""
+        self._U = np.empty((0, self.n))
+        self._C = np.empty((0, self.n))
+
+    def solve(self, b: np.ndarray, rtol: float, maxiter: int) -> tuple[np.ndarray, int, float]:
+        """Solve ``G y = b`` to relative residual ``rtol``.
+
+        Parameters
+        ----------
+        b : ndarray
+        rtol : float
+            Relative tolerance on the true residual ``||b - G y|| / ||b||``.
+        maxiter : int
+            Most new directions (products) of this solve, residual checks not included.
+
+        Returns
+        -------
+        y : ndarray
+        iterations : int
+            New directions built (products of ``G``, not counting the residual checks).
+        residual : float
+            Relative residual of ``y``: measured with one more product, or the recurrence
+            when its rounding bound is below a tenth of ``rtol`` (see the module docs).
+        """
+        return solve_together([(self, b)], lambda vs: [self.apply(vs[0])], rtol, maxiter)[0]
+
+    def iterate(self, b: np.ndarray, rtol: float, maxiter: int):
+        """The solve of :meth:`solve` as a generator: it yields every vector whose product
+        it needs and is sent the product back; its return value is ``(y, iterations,
+        residual)``.  :func:`solve_together` drives several at once."""
+        b = np.asarray(b, dtype=np.float64).reshape(-1)
+        nb = float(np.linalg.norm(b))
+        if nb == 0.0:
+            return np.zeros(self.n), 0, 0.0
+        new_u: list[np.ndarray] = []
+        new_c: list[np.ndarray] = []
+        nc0 = nc = 1.0
+        if self._C.shape[0]:
+            a = self._C @ b
+            y = a @ self._U
+            r = b - a @ self._C
+        else:
+            y = np.zeros(self.n)
+            r = b.copy()
+        its = 0
+        stalled = False
+        checks = 0
+        force = False                 # after a refuted check: at least one new direction
+        # sum of |coefficients| of y in the directions: bounds the rounding drift
+        weight = float(np.abs(a).sum()) if self._C.shape[0] else 0.0
+        while True:
+            while ((force or float(np.linalg.norm(r)) > rtol * nb) and its < maxiter
+                   and not stalled):
+                force = False
+                u = r / float(np.linalg.norm(r))
+                c = self._image((yield u))
+                its += 1
+                nc0 = float(np.linalg.norm(c))
+                for _ in range(2):                      # classical Gram-Schmidt, twice
+                    du, dc = self._project(c, new_u, new_c)
+                    u -= du
+                    c -= dc
+                nc = float(np.linalg.norm(c))
+                if not nc > _BREAKDOWN * nc0:
+                    stalled = True
+                    break
+                c /= nc
+                u /= nc
+                alpha = float(c @ r)
+                y += alpha * u
+                r -= alpha * c
+                weight += abs(alpha)
+                new_u.append(u)
+                new_c.append(c)
+            res = float(np.linalg.norm(r)) / nb
+            drift = _ROUNDING * (self._C.shape[0] + len(new_c)) * weight / nb
+            if res <= rtol and drift <= 0.1 * rtol:
+                break                 # the recurrence is the true residual to << rtol
+            # measure the truth (the recurrence may have drifted, or the solve stopped short)
+            r = b - self._image((yield y))
+            res = float(np.linalg.norm(r)) / nb
+            checks += 1
+            if res <= rtol or its >= maxiter or stalled or checks >= _MAX_CHECKS:
+                break
+            force = True
+            # fold the true residual back onto every direction (no product), go on
+            du, dc = self._project(r, new_u, new_c)
+            y += du
+            r -= dc
+        self._keep(new_u, new_c)
+        return y, its, res
+
+    def _image(self, c) -> np.ndarray:
+        self.products += 1
+        return np.array(c, dtype=np.float64).reshape(-1)
+
+    def _project(self, v: np.ndarray, new_u: list, new_c: list
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``(sum_j h_j u_j, sum_j h_j c_j)`` with ``h_j = c_j' v`` over the kept and this
+        solve's directions: the part of ``v`` in the span of the images, and the
+        directions that produce it."""
+        du = np.zeros(self.n)
+        dc = np.zeros(self.n)
+        if self._C.shape[0]:
+            h = self._C @ v
+            du += h @ self._U
+            dc += h @ self._C
+        for uj, cj in zip(new_u, new_c):
+            h = float(cj @ v)
+            du += h * uj
+            dc += h * cj
+        return du, dc
+
+    def _keep(self, new_u: list, new_c: list) -> None:
+        if not new_c or self.capacity == 0:
+            return
+        U = np.vstack([self._U, *[u[None] for u in new_u]])
+        C = np.vstack([self._C, *[c[None] for c in new_c]])
+        self._U, self._C = U[-self.capacity:], C[-self.capacity:]
+
+
+def solve_together(jobs: list, apply_many: Callable[[list], list], rtol: float,
+                   maxiter: int) -> list[tuple[np.ndarray, int, float]]:
+    """Run several :meth:`RecycledGCR.solve` in lock step, so that their products can be
+    made in one pass (for example a forward and a transposed solve reading the same stored
+    blocks once).
+
+    Parameters
+    ----------
+    jobs : list of (RecycledGCR, ndarray)
+        Each solver with its right-hand side.
+    apply_many : callable
+        ``apply_many(vectors)`` gets one entry per job, a vector or ``None`` for a job that
+        needs no product this round, and returns the images in the same places.
+    rtol, maxiter
+        As in :meth:`RecycledGCR.solve`, for every job.
+
+    Returns
+    -------
+    list of (y, iterations, residual), one per job.
+    """
+    gens = [solver.iterate(b, rtol, maxiter) for solver, b in jobs]
+    out: list = [None] * len(gens)
+    need: list = [None] * len(gens)
+    threads = next((s._threads for s, _ in jobs if s._threads is not None), None)
+    ctx = threads.limit(limits=1, user_api="blas") if threads is not None else nullcontext()
+    with ctx:
+        for k, g in enumerate(gens):
+            try:
+                need[k] = next(g)
+            except StopIteration as stop:
+                out[k] = stop.value
+        while any(v is not None for v in need):
+            images = apply_many(need)
+            for k, g in enumerate(gens):
+                if need[k] is None:
+                    continue
+                try:
+                    need[k] = g.send(images[k])
+                except StopIteration as stop:
+                    out[k], need[k] = stop.value, None
+    return out

@@ -1,0 +1,121 @@
+"""Krylov recycling of the boundary-integral solves (problems/suspension/bim_recycle.py)
+and the paired forward/transposed product of the mobility."""
+
+import numpy as np
+import pytest
+
+from lcpbench.problems.suspension.bim import BimMobility
+from lcpbench.problems.suspension.bim_recycle import RecycledGCR, solve_together
+from lcpbench.problems.suspension.contacts import build_contact_problem
+
+
+def _matrix(n=60, seed=0):
+    """A nonsymmetric second-kind matrix I + K with ||K|| < 1, like the traction operator."""
+    rng = np.random.default_rng(seed)
+    K = rng.standard_normal((n, n))
+    return np.eye(n) + 0.9 * K / np.linalg.norm(K, 2)
+
+
+def test_solves_to_the_true_residual_and_reuses_directions():
+    G = _matrix()
+    calls = []
+    gcr = RecycledGCR(lambda v: calls.append(1) or G @ v, 60, capacity=500)
+    rng = np.random.default_rng(1)
+    b1, b2 = rng.standard_normal(60), rng.standard_normal(60)
+    y1, its1, res1 = gcr.solve(b1, 1e-10, 200)
+    assert np.linalg.norm(b1 - G @ y1) <= 1e-10 * np.linalg.norm(b1)
+    assert res1 == pytest.approx(np.linalg.norm(b1 - G @ y1) / np.linalg.norm(b1), rel=1e-3,
+                                 abs=1e-14)
+    assert its1 > 5 and gcr.size == its1
+    # a right-hand side in the span of what was solved needs no new product
+    n_before = len(calls)
+    y3, its3, _ = gcr.solve(2.0 * b1, 1e-10, 200)
+    assert its3 == 0 and len(calls) == n_before
+    assert np.allclose(y3, 2.0 * y1, rtol=1e-9, atol=1e-12)
+    # a new right-hand side starts from the projection: fewer new directions than alone
+    _, its2, _ = gcr.solve(b2, 1e-10, 200)
+    _, its_alone, _ = RecycledGCR(lambda v: G @ v, 60, capacity=0).solve(b2, 1e-10, 200)
+    assert its2 < its_alone
+
+
+def test_capacity_drops_the_oldest_and_clear_forgets():
+    G = _matrix()
+    gcr = RecycledGCR(lambda v: G @ v, 60, capacity=7)
+    gcr.solve(np.ones(60), 1e-10, 200)
+    assert gcr.size == 7
+    gcr.clear()
+    assert gcr.size == 0
+    y, its, _ = gcr.solve(np.ones(60), 1e-10, 200)
+    assert its > 7 and np.linalg.norm(np.ones(60) - G @ y) <= 1e-10 * np.sqrt(60)
+
+
+def test_unconverged_solve_reports_the_measured_residual():
+    G = _matrix()
+    gcr = RecycledGCR(lambda v: G @ v, 60, capacity=100)
+    b = np.arange(60.0)
+    y, its, res = gcr.solve(b, 1e-12, 3)
+    assert its == 3
+    assert res == pytest.approx(np.linalg.norm(b - G @ y) / np.linalg.norm(b), rel=1e-12)
+    assert res > 1e-3
+
+
+def test_solve_together_pairs_the_products_and_matches_separate_solves():
+    G = _matrix(seed=3)
+    rng = np.random.default_rng(4)
+    b, z = rng.standard_normal(60), rng.standard_normal(60)
+    fwd = RecycledGCR(lambda v: G @ v, 60, capacity=100)
+    adj = RecycledGCR(lambda v: G.T @ v, 60, capacity=100)
+    rounds = []
+
+    def apply_many(vs):
+        rounds.append([v is not None for v in vs])
+        return [None if vs[0] is None else G @ vs[0], None if vs[1] is None else G.T @ vs[1]]
+
+    (y, _, _), (w, _, _) = solve_together([(fwd, b), (adj, z)], apply_many, 1e-10, 200)
+    assert np.linalg.norm(G @ y - b) <= 1e-10 * np.linalg.norm(b)
+    assert np.linalg.norm(G.T @ w - z) <= 1e-10 * np.linalg.norm(z)
+    both = sum(all(r) for r in rounds)
+    assert both >= min(fwd.products, adj.products) - 1 and len(rounds) <= max(fwd.products,
+                                                                               adj.products)
+
+
+def _cluster():
+    rng = np.random.default_rng(7)
+    c = np.array([[0, 0, 0], [2.3, 0, 0], [0, 2.25, 0.1], [2.2, 2.4, 0.3]], float)
+    return c + 0.02 * rng.standard_normal(c.shape)
+
+
+def test_paired_product_equals_the_separate_products():
+    c = _cluster()
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
+    B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, recycle=0)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        x, y = rng.standard_normal(24), rng.standard_normal(24)
+        u, ua = A.matvec_rmatvec(x, y)
+        assert np.abs(u - B @ x).max() <= 1e-9 * np.abs(u).max()
+        assert np.abs(ua - B.rmatvec(y)).max() <= 1e-9 * np.abs(ua).max()
+    assert len(A.gmres_iterations) == len(A.adjoint_iterations) == 3
+    assert A.gmres_iterations[-1] < A.gmres_iterations[0]         # recycled
+    with pytest.raises(ValueError, match="have 5 entries"):
+        A.matvec_rmatvec(np.ones(5), np.ones(24))
+
+
+def test_symmetrised_contact_operator_uses_the_paired_product():
+    c = _cluster()
+    F = np.tile([[0.0, 0.0, -1.0]], (4, 1))
+    kw = dict(dt=0.1, delta=0.4, model="bim", p=4, eps_gmres=1e-10)
+    prob = build_contact_problem(c, 1.0, F, None, **kw)
+    assert prob.lcp.n > 0
+    mob = prob.mobility
+    paired = []
+    mob_pair = mob.matvec_rmatvec
+    mob.matvec_rmatvec = lambda x, y: paired.append(1) or mob_pair(x, y)
+    v = np.linspace(0.5, 1.5, prob.lcp.n)
+    Av = prob.lcp.A @ v
+    assert paired == [1]
+    D = prob.contacts.D
+    ref = BimMobility(c, 1.0, p=4, eps_gmres=1e-10, recycle=0)
+    f = D @ v
+    expect = D.T @ (0.5 * (ref @ f + ref.rmatvec(f)))
+    assert np.abs(Av - expect).max() <= 1e-8 * np.abs(expect).max()
