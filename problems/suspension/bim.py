@@ -503,7 +503,7 @@ class BimMobility(LinearOperator):
                 fn = (apply_blocks_both if plan.blocks.size > PARALLEL_WORK
                       else apply_blocks_both_serial)
                 fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out, ob, part)
-                np.add.at(coef_bar, plan.block_src, part)
+                coef_bar += pieces.by_source @ part
             out_a += dense_rows(coef_bar, pieces.analysis)
         return out.reshape(-1), pieces.precondition(out_a.reshape(-1))
 

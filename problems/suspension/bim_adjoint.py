@@ -17,6 +17,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import scipy.sparse as sp
 
 from .bim_pairs import csr
 from .kernels import PARALLEL_WORK, dense_rows
@@ -114,6 +115,10 @@ class AdjointPieces:
             self.blk_order = order
             self.blk_ptr = np.searchsorted(plan.block_src[order],
                                            np.arange(op.M + 1)).astype(np.int64)
+            nb = plan.block_src.size
+            # sums per-block adjoint parts by source sphere (the paired product)
+            self.by_source = sp.csr_matrix((np.ones(nb), (plan.block_src, np.arange(nb))),
+                                           shape=(op.M, nb))
 
     def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid: SphereGrid,
                    projected: bool) -> dict:

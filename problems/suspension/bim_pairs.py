@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import traction_response
+from .kernels import real_block_columns, traction_response
 from .sphere_vsh import (
     SphereGrid,
     VSHBasis,
@@ -248,9 +248,8 @@ class PairPlan:
                                   np.ascontiguousarray(np.tile(nodes, (len(part), 1))),
                                   np.ascontiguousarray(np.repeat(self.centers[jj], Nq, axis=0)),
                                   np.repeat(self.radii[jj], Nq), p, fac, resp)
-                R = (resp.reshape(len(part), Nq, -1, 3).transpose(0, 1, 3, 2)
-                     .reshape(len(part), 3 * Nq, -1))
-                Ep = (R[:, :, flat] * cfac[None, None, :]).real
+                Ep = np.empty((len(part), 3 * Nq, nv))
+                real_block_columns(resp.reshape(len(part) * Nq, -1, 3), flat, cfac, Ep)
                 E[part] = np.matmul(self.near_proj, Ep) if proj else Ep
         self.blocks = E
         self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)

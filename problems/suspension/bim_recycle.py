@@ -68,8 +68,9 @@ class RecycledGCR:
     n : int
         Length of the unknowns.
     capacity : int
-        Most directions kept (the oldest are dropped first); 0 keeps nothing, so every
-        solve is plain restarted-free GCR (GMRES) from zero.
+        Most directions kept; when full, a new direction replaces the oldest (truncated
+        GCR, which keeps the residual recurrence exact).  0 keeps nothing between solves:
+        every solve is then full GCR (GMRES) from zero.
     threads : ThreadpoolController, optional
         Used to hold BLAS to one thread during the orthogonalisation (the products run
         compiled parallel kernels; threaded BLAS beside them is slower on few cores).
@@ -88,18 +89,44 @@ class RecycledGCR:
         self.n = int(n)
         self.capacity = max(0, int(capacity))
         self._threads = threads
-        self._U = np.empty((0, self.n))
+        self._U = np.empty((0, self.n))          # ring buffers, rows [0, _filled) valid
         self._C = np.empty((0, self.n))
+        self._filled = 0
+        self._next = 0
         self.products = 0
 
     @property
     def size(self) -> int:
-        return int(self._C.shape[0])
+        return self._filled
 
     def clear(self) -> None:
         """Forget the kept directions (the operator changed)."""
-        self._U = np.empty((0, self.n))
-        self._C = np.empty((0, self.n))
+        self._filled = self._next = 0
+
+    def _reserve(self, rows: int) -> None:
+        """Room for ``rows`` directions in all (pages are touched only when written)."""
+        if self._C.shape[0] < rows:
+            U = np.empty((rows, self.n))
+            C = np.empty((rows, self.n))
+            U[:self._filled] = self._U[:self._filled]
+            C[:self._filled] = self._C[:self._filled]
+            self._U, self._C = U, C
+
+    def _add(self, u: np.ndarray, c: np.ndarray) -> None:
+        rows = self._C.shape[0]
+        self._U[self._next] = u
+        self._C[self._next] = c
+        self._next = (self._next + 1) % rows
+        self._filled = min(self._filled + 1, rows)
+
+    def _project(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(U' h, C' h)`` with ``h = C v`` over the directions held: the part of ``v`` in
+        the span of the images, and the directions that produce it (one BLAS pass each)."""
+        k = self._filled
+        if k == 0:
+            return np.zeros(self.n), np.zeros(self.n)
+        h = self._C[:k] @ v
+        return h @ self._U[:k], h @ self._C[:k]
 
     def solve(self, b: np.ndarray, rtol: float, maxiter: int) -> tuple[np.ndarray, int, float]:
         """Solve ``G y = b`` to relative residual ``rtol``.
@@ -131,91 +158,68 @@ class RecycledGCR:
         nb = float(np.linalg.norm(b))
         if nb == 0.0:
             return np.zeros(self.n), 0, 0.0
-        new_u: list[np.ndarray] = []
-        new_c: list[np.ndarray] = []
-        nc0 = nc = 1.0
-        if self._C.shape[0]:
-            a = self._C @ b
-            y = a @ self._U
-            r = b - a @ self._C
-        else:
-            y = np.zeros(self.n)
-            r = b.copy()
-        its = 0
-        stalled = False
-        checks = 0
-        force = False                 # after a refuted check: at least one new direction
+        keep = self.capacity > 0
+        self._reserve(self.capacity if keep else max(int(maxiter), 1))
+        k = self._filled
+        h = self._C[:k] @ b
+        y = h @ self._U[:k] if k else np.zeros(self.n)
+        r = b - h @ self._C[:k] if k else b.copy()
         # sum of |coefficients| of y in the directions: bounds the rounding drift
-        weight = float(np.abs(a).sum()) if self._C.shape[0] else 0.0
-        while True:
-            while ((force or float(np.linalg.norm(r)) > rtol * nb) and its < maxiter
-                   and not stalled):
-                force = False
-                u = r / float(np.linalg.norm(r))
-                c = self._image((yield u))
-                its += 1
-                nc0 = float(np.linalg.norm(c))
-                for _ in range(2):                      # classical Gram-Schmidt, twice
-                    du, dc = self._project(c, new_u, new_c)
+        weight = float(np.abs(h).sum())
+        its = checks = 0
+        stalled = force = False       # force: after a refuted check, one new direction
+        res = 1.0
+        try:
+            while True:
+                while ((force or float(np.linalg.norm(r)) > rtol * nb) and its < maxiter
+                       and not stalled):
+                    force = False
+                    u = r / float(np.linalg.norm(r))
+                    c = self._image((yield u))
+                    its += 1
+                    nc0 = float(np.linalg.norm(c))
+                    du, dc = self._project(c)
                     u -= du
                     c -= dc
-                nc = float(np.linalg.norm(c))
-                if not nc > _BREAKDOWN * nc0:
-                    stalled = True
+                    nc = float(np.linalg.norm(c))
+                    if nc < nc0 / np.sqrt(2.0):              # twice is enough (Kahan)
+                        du, dc = self._project(c)
+                        u -= du
+                        c -= dc
+                        nc = float(np.linalg.norm(c))
+                    if not nc > _BREAKDOWN * nc0:
+                        stalled = True
+                        break
+                    c /= nc
+                    u /= nc
+                    alpha = float(c @ r)
+                    y += alpha * u
+                    r -= alpha * c
+                    weight += abs(alpha)
+                    self._add(u, c)
+                res = float(np.linalg.norm(r)) / nb
+                drift = _ROUNDING * self._filled * weight / nb
+                if res <= rtol and drift <= 0.1 * rtol:
+                    break             # the recurrence is the true residual to << rtol
+                # measure the truth (the recurrence may have drifted, or the solve stopped)
+                r = b - self._image((yield y))
+                res = float(np.linalg.norm(r)) / nb
+                checks += 1
+                if res <= rtol or its >= maxiter or stalled or checks >= _MAX_CHECKS:
                     break
-                c /= nc
-                u /= nc
-                alpha = float(c @ r)
-                y += alpha * u
-                r -= alpha * c
-                weight += abs(alpha)
-                new_u.append(u)
-                new_c.append(c)
-            res = float(np.linalg.norm(r)) / nb
-            drift = _ROUNDING * (self._C.shape[0] + len(new_c)) * weight / nb
-            if res <= rtol and drift <= 0.1 * rtol:
-                break                 # the recurrence is the true residual to << rtol
-            # measure the truth (the recurrence may have drifted, or the solve stopped short)
-            r = b - self._image((yield y))
-            res = float(np.linalg.norm(r)) / nb
-            checks += 1
-            if res <= rtol or its >= maxiter or stalled or checks >= _MAX_CHECKS:
-                break
-            force = True
-            # fold the true residual back onto every direction (no product), go on
-            du, dc = self._project(r, new_u, new_c)
-            y += du
-            r -= dc
-        self._keep(new_u, new_c)
+                force = True
+                # fold the true residual back onto every direction (no product), go on
+                du, dc = self._project(r)
+                y += du
+                r -= dc
+        finally:
+            if not keep:
+                self.clear()
         return y, its, res
 
     def _image(self, c) -> np.ndarray:
         self.products += 1
         return np.array(c, dtype=np.float64).reshape(-1)
-
-    def _project(self, v: np.ndarray, new_u: list, new_c: list
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """``(sum_j h_j u_j, sum_j h_j c_j)`` with ``h_j = c_j' v`` over the kept and this
-        solve's directions: the part of ``v`` in the span of the images, and the
-        directions that produce it."""
-        du = np.zeros(self.n)
-        dc = np.zeros(self.n)
-        if self._C.shape[0]:
-            h = self._C @ v
-            du += h @ self._U
-            dc += h @ self._C
-        for uj, cj in zip(new_u, new_c):
-            h = float(cj @ v)
-            du += h * uj
-            dc += h * cj
-        return du, dc
-
-    def _keep(self, new_u: list, new_c: list) -> None:
-        if not new_c or self.capacity == 0:
-            return
-        U = np.vstack([self._U, *[u[None] for u in new_u]])
-        C = np.vstack([self._C, *[c[None] for c in new_c]])
-        self._U, self._C = U[-self.capacity:], C[-self.capacity:]
 
 
 def solve_together(jobs: list, apply_many: Callable[[list], list], rtol: float,

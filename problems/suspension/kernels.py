@@ -20,6 +20,7 @@ from .harmonics import (cross_gradient, derivatives, field_buffers, solid_harmon
 __all__ = ["PARALLEL_WORK", "point_force_weight", "traction_expansion", "center_readout",
            "traction_response", "direct_traction_ranges", "direct_traction_ranges_serial",
            "direct_traction_skip", "dense_rows", "apply_blocks", "apply_blocks_serial",
+           "real_block_columns",
            "synthesize_forces", "synthesize_forces_serial"]
 
 _C0 = -3.0 / (4.0 * np.pi)
@@ -228,6 +229,28 @@ def _direct_traction_ranges_impl(tgt_pts: np.ndarray, tgt_nrm: np.ndarray, tgt_s
 # The BIM product alternates numba-parallel sums with small dense products; on few cores
 # BLAS threads and numba threads then spin against each other (measured: a 27 x 432 x 432
 # product 100x slower right after a parallel numba call).  These loops avoid that.
+
+@njit(parallel=True, cache=True)
+def real_block_columns(resp: np.ndarray, flat: np.ndarray, cfac: np.ndarray,
+                       out: np.ndarray) -> None:
+    """Near-field block rows from complex responses, in one pass.
+
+    ``resp`` is ``(P * Nq, K, 3)`` (pair-major targets, complex coefficient index, traction
+    component) as :func:`traction_response` writes it; ``out[k, 3 q + i, c] =
+    Re(resp[k Nq + q, flat[c], i] * cfac[c])`` for pair ``k``, node ``q`` and real VSH
+    coefficient ``c`` (what a reshape, transpose, column selection and real part give, without
+    the copies)."""
+    P, rows, nv = out.shape
+    Nq = rows // 3
+    for t in prange(P * Nq):
+        k = t // Nq
+        q = t - k * Nq
+        for i in range(3):
+            r = 3 * q + i
+            for c in range(nv):
+                z = resp[t, flat[c], i] * cfac[c]
+                out[k, r, c] = z.real
+
 
 def _apply_blocks_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray, coef: np.ndarray,
                  out: np.ndarray) -> None:
