@@ -29,9 +29,10 @@ accuracy, not by a fixed distance:
 * closer pairs: exact exterior spherical-harmonic expansions of the band-limited
   density (Corona & Veerapaneni, JCP 2018), stored as dense coefficient blocks
   (``3N x n_vsh``: traction on sphere i per VSH coefficient of sphere j) within
-  ``near_block_mb``, closest first; pairs that would need a grid of order >= 1.5 p
-  also get blocks while the budget lasts (a block product is cheaper than that
-  sum); expansion pairs beyond the budget are evaluated on the fly (same values).
+  ``near_block_mb``, closest first; pairs that would need a source grid finer than p
+  also get blocks while the budget lasts (a block product is much cheaper than that
+  sum, see :mod:`bim_pairs`); expansion pairs beyond the budget are evaluated on the
+  fly (same values).
   Pairs with a gap below twice the source radius are always expansion pairs, and
   their traction is evaluated on sphere i's grid of order 2p and projected onto its
   degree-p VSH (a Galerkin treatment of the near field,
@@ -184,8 +185,9 @@ class BimMobility(LinearOperator):
     near_block_mb : float
         Memory budget (MB) for the dense near-field blocks built once per
         configuration (``3N x n_vsh`` doubles per pair, 0.8 MB at p = 8); the
-        closest pairs get blocks first, the remaining expansion pairs are
-        evaluated on the fly (same values, slower).
+        closest pairs get blocks first (4096 MB hold every pair of 64 spheres at
+        p = 8), the remaining expansion pairs are evaluated on the fly (same
+        values, slower).
     quad_tol : float, optional
         Accuracy (per unit density) of the quadrature between spheres; default
         ``eps_gmres / 100`` (clamped to [1e-15, 1e-4]).
@@ -227,7 +229,7 @@ class BimMobility(LinearOperator):
 
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
                  mu: float = 1.0, on_failure: str = "warn", recycle: int | None = None,
-                 maxiter: int = 500, near_block_mb: float = 2048.0,
+                 maxiter: int = 500, near_block_mb: float = 4096.0,
                  quad_tol: float | None = None, far: str = "direct",
                  near_upsample: float = _NEAR_UPSAMPLE) -> None:
         c, r = check_configuration(centers, radii)

@@ -213,10 +213,13 @@ class PairPlan:
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)
         cfac = b.to_complex[flat, np.arange(nv)]
-        # candidates: expansion pairs, then pairs whose quadrature needs a source grid of
-        # order >= 1.5 p (a stored block is then cheaper per product than the sum)
+        # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
+        # than p (a stored block is then much cheaper per product than the sum: measured at
+        # M = 64, p = 8, the 1454 pairs summed on grids 10 and 12 took 0.50 s of a 0.74 s
+        # forward product and most of a 1.25 s transposed one; a block costs about as much
+        # to build as two or three such sums, and a step makes hundreds of products)
         lv = self.level_of
-        fine = [L for L, q in enumerate(self.levels) if 2 * q >= 3 * p]
+        fine = [L for L, q in enumerate(self.levels) if q > p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
         pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
