@@ -15,7 +15,7 @@ import re
 import numpy as np
 import pandas as pd
 
-__all__ = ["boxplot_svg", "curves_svg", "profile_svg", "work_precision_svg", "prefix_ids",
+__all__ = ["boxplot_svg", "grouped_boxplot_svg", "curves_svg", "profile_svg", "work_precision_svg", "prefix_ids",
            "svg_of", "figure", "WIDTH"]
 
 #: Width of every figure in inches (about 860 CSS pixels).
@@ -92,6 +92,64 @@ def boxplot_svg(data: pd.DataFrame, by: str, value: str, title: str, ylabel: str
         ax.text(0.5, 0.5, "no solved run", ha="center", va="center", transform=ax.transAxes)
     ax.set_xticks(range(1, len(labels) + 1))
     ax.set_xticklabels(labels, rotation=35, ha="right")
+    ax.set_ylabel(ylabel)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_title(title)
+    return svg_of(fig)
+
+
+def _svg_id(text: str) -> str:
+    """``text`` as an SVG id: letters, digits, ``_``, ``-`` and ``.`` kept, the rest ``_``."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", text)
+
+
+def grouped_boxplot_svg(data: pd.DataFrame, group: str, by: str, value: str, title: str,
+                        xlabel: str, ylabel: str, groups: list | None = None,
+                        order: list | None = None, log: bool = True) -> str:
+    """Boxes of ``value`` grouped along x by ``group``, one box per ``by`` in each group.
+
+    E.g. E-MVPs per step with one group per lattice size and one box per solver:
+    each ``by`` value keeps its colour in every group and appears once in the
+    legend. ``groups`` and ``order`` fix the order of the groups and of the boxes
+    within a group (default: as first seen, sorted). On a log axis zero values
+    cannot be drawn and are left out. Each box carries the SVG id
+    ``box_<group>_<by>`` (characters outside ``[A-Za-z0-9_.-]`` become ``_``).
+    """
+    groups = list(groups) if groups is not None else sorted(data[group].unique())
+    series = list(order) if order is not None else sorted(data[by].unique())
+    colors = dict(zip(series, _colors(len(series))))
+    width = 0.8 / max(len(series), 1)
+    fig, ax = figure(WIDTH, 3.8)
+    drawn = set()
+    for i, gval in enumerate(groups):
+        for j, s in enumerate(series):
+            v = pd.to_numeric(data[(data[group] == gval) & (data[by] == s)][value],
+                              errors="coerce").dropna()
+            if log:
+                v = v[v > 0]
+            if v.empty:
+                continue
+            x = i + 1 - 0.4 + width * (j + 0.5)
+            bp = ax.boxplot([v.to_numpy()], positions=[x], widths=width * 0.85,
+                            patch_artist=True, manage_ticks=False,
+                            medianprops={"color": "black"})
+            box = bp["boxes"][0]
+            box.set_facecolor(colors[s])
+            box.set_gid(_svg_id(f"box_{gval}_{s}"))
+            if s not in drawn:
+                box.set_label(str(s))
+                drawn.add(s)
+    if drawn:
+        if log:
+            ax.set_yscale("log")
+        _legend_right(ax)
+    else:
+        ax.text(0.5, 0.5, "no positive value to draw", ha="center", va="center",
+                transform=ax.transAxes)
+    ax.set_xlim(0.4, len(groups) + 0.6)
+    ax.set_xticks(range(1, len(groups) + 1))
+    ax.set_xticklabels([str(g) for g in groups])
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
     ax.set_title(title)

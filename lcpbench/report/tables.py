@@ -6,6 +6,7 @@ returns a DataFrame sorted deterministically, so two reports diff cleanly.
 
 from __future__ import annotations
 
+import json
 import warnings
 
 import numpy as np
@@ -15,7 +16,9 @@ from lcpbench.core.defaults import BASELINE_SOLVER
 
 __all__ = ["offline_table", "paper_tables", "failures_table", "work_precision",
            "performance_profile", "online_table", "convergence_curves", "LEVELS",
-           "solved_mask", "offline_runs", "work_precision_display"]
+           "solved_mask", "offline_runs", "work_precision_display", "online_runs",
+           "online_common_steps", "online_paper_table", "online_step_rows", "lattice_side",
+           "online_paper_display"]
 
 #: Residual levels of the work-precision table (absolute ``||min(x, Ax+b)||``).
 LEVELS = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -287,28 +290,208 @@ def convergence_curves(results: pd.DataFrame, history: pd.DataFrame, x: str = "e
     return curves
 
 
-def online_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
-    """The paper's online table: total and collision-resolution seconds per scene and solver.
+def online_runs(results: pd.DataFrame) -> pd.DataFrame:
+    """The finished online steps of a results frame.
 
-    Speedups are the baseline's times divided by the solver's (``-`` when
-    the baseline did not run on the scene).
+    A step counts as finished when it has both its collision-resolution seconds
+    (``time_s``) and its whole-step seconds (``sim_total_s``); the row of a step
+    that stopped a simulation (diverged forces, a rejected configuration) has
+    neither and is left out.
     """
+    if results.empty or "kind" not in results.columns:
+        return results.iloc[0:0]
     on = results[results["kind"] == "online"]
     if on.empty:
+        return on
+    t = pd.to_numeric(on["time_s"], errors="coerce")
+    tot = pd.to_numeric(on.get("sim_total_s", pd.Series(np.nan, index=on.index)),
+                        errors="coerce")
+    return on[np.isfinite(t) & np.isfinite(tot)]
+
+
+def lattice_side(problem_params) -> int | None:
+    """The lattice side ``m`` of a scene (``M = m^3`` particles) from its stored parameters.
+
+    ``problem_params`` is the JSON text that ``lcpbench simulate`` stores per row;
+    ``None`` when it is missing, unreadable or has no integer ``m``.
+    """
+    if not isinstance(problem_params, str):
+        return None
+    try:
+        m = json.loads(problem_params).get("m")
+    except (ValueError, AttributeError):
+        return None
+    return int(m) if isinstance(m, (int, np.integer)) and not isinstance(m, bool) else None
+
+
+def _online_solver_order(on: pd.DataFrame, baseline: str) -> list[str]:
+    """Solvers of the online rows: the baseline first, then the others as in the offline tables."""
+    groups = sorted((g for _, g in on.groupby("solver", sort=True)), key=_solver_order)
+    names = [str(g["solver"].iloc[0]) for g in groups]
+    return sorted(names, key=lambda s: s != baseline)
+
+
+def _scene_order(on: pd.DataFrame) -> list[str]:
+    """Scenes sorted by lattice side (scenes without one last), then by name."""
+    side = {str(p): lattice_side(g["problem_params"].iloc[0]) if "problem_params" in g else None
+            for p, g in on.groupby("problem", sort=True)}
+    return sorted(side, key=lambda p: (side[p] is None, side[p] or 0, p))
+
+
+def online_common_steps(results: pd.DataFrame) -> dict[str, dict]:
+    """Per scene, the steps every one of its simulations finished.
+
+    Simulations are resumable and may be unfinished, so solvers of one scene are
+    compared over the steps they all finished, never over unequal step ranges.
+
+    Returns
+    -------
+    dict
+        ``{scene: {"steps": sorted list of common step indices,
+        "stored": {solver: finished steps stored}}}``.
+    """
+    on = online_runs(results)
+    out = {}
+    for scene, part in on.groupby("problem", sort=True):
+        per = {str(s): set(pd.to_numeric(g["step"]).astype(int))
+               for s, g in part.groupby("solver", sort=True)}
+        common = set.intersection(*per.values()) if per else set()
+        out[str(scene)] = {"steps": sorted(common),
+                           "stored": {s: len(v) for s, v in per.items()}}
+    return out
+
+
+def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
+    """The finished online steps cut to each scene's common steps, with a ``size`` label.
+
+    ``size`` is ``"3x3x3"`` for a lattice of side 3 (the scene's name when it
+    has no lattice side); ``M`` the number of particles (``m^3``, NaN without a
+    side). Rows are ordered by lattice side, scene, solver and step.
+    """
+    on = online_runs(results)
+    if on.empty:
+        return on
+    common = online_common_steps(on)
+    keep = [int(r_step) in common[str(scene)]["steps"] for scene, r_step in
+            zip(on["problem"], on["step"])]
+    cut = on[np.asarray(keep, dtype=bool)].copy()
+    sides = {p: lattice_side(g["problem_params"].iloc[0]) if "problem_params" in g else None
+             for p, g in cut.groupby("problem", sort=True)}
+    labels = {p: f"{m}x{m}x{m}" if m is not None else str(p) for p, m in sides.items()}
+    if len(set(labels.values())) < len(labels):      # two scenes of one size: keep them apart
+        labels = {p: f"{lab} ({p})" if sides[p] is not None else lab for p, lab in labels.items()}
+    cut["size"] = cut["problem"].map(labels)
+    cut["M"] = cut["problem"].map(lambda p: float(sides[p] ** 3) if sides[p] is not None
+                                  else np.nan)
+    order = {p: i for i, p in enumerate(_scene_order(cut))}
+    cut["_o"] = cut["problem"].map(order)
+    return cut.sort_values(["_o", "problem", "solver", "step"]).drop(columns="_o") \
+        .reset_index(drop=True)
+
+
+def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
+    """The paper's online table: one row per scene, over the steps all its solvers finished.
+
+    Columns: ``scene``, ``lattice size`` (``3x3x3``), ``M`` (particles), ``steps``
+    (the common steps compared); the baseline's summed total and
+    collision-resolution seconds; for every other solver its total and
+    collision-resolution speedup against the baseline (the baseline's summed
+    seconds divided by the solver's, NaN without a baseline run on the scene);
+    then the median E-MVPs and median high-fidelity MVPs per step of every
+    solver. Total seconds are the whole step (``sim_total_s``), collision
+    resolution the LCP solve (``time_s``).
+
+    ``attrs["stored"]`` maps each scene to ``{solver: finished steps stored}``
+    so a caption can say where a simulation was cut; ``attrs["solvers"]`` is
+    the solver order of the columns (the baseline first).
+    """
+    rows_in = online_step_rows(results)
+    if rows_in.empty:
         return pd.DataFrame()
-    agg = on.groupby(["problem", "solver"], sort=True).agg(
-        steps=("step", "count"), total_s=("sim_total_s", "sum"), collision_s=("time_s", "sum"),
-        median_emvps=("emvps", "median"), max_overlap=("max_overlap", "max"),
-        solved=("solved", lambda s: int(_truthy(s).sum()))).reset_index()
+    solvers = _online_solver_order(rows_in, baseline)
+    stored = {k: v["stored"] for k, v in online_common_steps(results).items()}
     rows = []
-    for _, r in agg.iterrows():
-        base = agg[(agg["problem"] == r["problem"]) & (agg["solver"] == baseline)]
-        sp_t = sp_c = "-"
-        if len(base):
-            sp_t = f"{float(base['total_s'].iloc[0]) / max(r['total_s'], 1e-12):.2f}"
-            sp_c = f"{float(base['collision_s'].iloc[0]) / max(r['collision_s'], 1e-12):.2f}"
-        rows.append({**r.to_dict(), "total_s": round(float(r["total_s"]), 3),
-                     "collision_s": round(float(r["collision_s"]), 3),
-                     f"speedup_total_vs_{baseline}": sp_t,
-                     f"speedup_collision_vs_{baseline}": sp_c})
+    for scene in _scene_order(rows_in):
+        part = rows_in[rows_in["problem"] == scene]
+        m = lattice_side(part["problem_params"].iloc[0]) if "problem_params" in part else None
+        row = {"scene": scene, "lattice size": f"{m}x{m}x{m}" if m is not None else "-",
+               "M": m ** 3 if m is not None else np.nan,
+               "steps": int(part["step"].nunique())}
+        sums = {s: (float(pd.to_numeric(g["sim_total_s"]).sum()),
+                    float(pd.to_numeric(g["time_s"]).sum()))
+                for s, g in part.groupby("solver", sort=True)}
+        base = sums.get(baseline)
+        row[f"{baseline} total s"] = base[0] if base else np.nan
+        row[f"{baseline} collision s"] = base[1] if base else np.nan
+        for s in solvers:
+            if s == baseline:
+                continue
+            mine = sums.get(s)
+            for j, what in ((0, "total"), (1, "collision")):
+                ok = base is not None and mine is not None and mine[j] > 0
+                row[f"{s} {what} speedup"] = base[j] / mine[j] if ok else np.nan
+        for s in solvers:
+            g = part[part["solver"] == s]
+            for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs")):
+                v = pd.to_numeric(g[col], errors="coerce").dropna()
+                row[f"{s} {what}"] = float(v.median()) if len(v) else np.nan
+        rows.append(row)
+    out = pd.DataFrame(rows)
+    out.attrs["stored"] = stored
+    out.attrs["solvers"] = solvers
+    return out
+
+
+def online_paper_display(paper: pd.DataFrame) -> pd.DataFrame:
+    """:func:`online_paper_table` as text for the page: seconds to 4 digits, speedups as ``1.70x``.
+
+    Missing values (no baseline run on a scene, no lattice side) become ``-``.
+    """
+    if paper is None or paper.empty:
+        return pd.DataFrame()
+
+    def fmt(col: str, v) -> str:
+        if v is None or (isinstance(v, float) and not np.isfinite(v)):
+            return "-"
+        if col.endswith(" speedup"):
+            return f"{float(v):.2f}x"
+        if col.endswith(" s"):
+            return f"{float(v):.0f}" if abs(float(v)) >= 1000 else f"{float(v):.4g}"
+        if col.startswith("median") or " median " in col:
+            return f"{float(v):.3g}"
+        if col == "M":
+            return str(int(v))
+        return str(v)
+
+    return pd.DataFrame({c: [fmt(c, v) for v in paper[c]] for c in paper.columns})
+
+
+def online_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
+    """Every online simulation in detail: one row per scene and solver, over all its steps.
+
+    Per scene (sorted by lattice side) and solver (the baseline first): the
+    finished steps stored, summed total and collision-resolution seconds, median
+    E-MVPs and high-fidelity MVPs per step, the largest overlap and the steps
+    solved (verified). Simulations of one scene may have different step counts
+    here; :func:`online_paper_table` compares them over their common steps.
+    """
+    on = online_runs(results)
+    if on.empty:
+        return pd.DataFrame()
+    solvers = _online_solver_order(on, baseline)
+    rows = []
+    for scene in _scene_order(on):
+        part = on[on["problem"] == scene]
+        for s in solvers:
+            g = part[part["solver"] == s]
+            if g.empty:
+                continue
+            rows.append({
+                "problem": scene, "solver": s, "steps": int(len(g)),
+                "total_s": float(pd.to_numeric(g["sim_total_s"]).sum()),
+                "collision_s": float(pd.to_numeric(g["time_s"]).sum()),
+                "median_emvps": float(pd.to_numeric(g["emvps"], errors="coerce").median()),
+                "median_mvps": float(pd.to_numeric(g["mvps"], errors="coerce").median()),
+                "max_overlap": float(pd.to_numeric(g["max_overlap"], errors="coerce").max()),
+                "solved": int(_truthy(g["solved"]).sum())})
     return pd.DataFrame(rows)
