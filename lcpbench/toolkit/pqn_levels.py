@@ -312,14 +312,19 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     base = lows[0]
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
+    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
+    diag.set_pairs(hi_pairs.S, hi_pairs.Y)
+    inner_state = state.get("inner")
+    if model_error is not None and model_error > opts.model_tol:
+        # judged useless before the first step: no low product to rebuild the model
+        counters.decisions.append("mono:model")
+        return _as_mono(apply, z, G, stop, max_iter, 0, opts, counters, diag, exact_gradient,
+                        hi_pairs, inner_state, None)
     hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
         b if b is not None else base(s) for s, b in zip(hi_pairs.S, hi_pairs.B0S)])
     model = _rebuild(base, n, hi_pairs)
-    inner_state = state.get("inner")
     if state.get("model") is not None:  # our pairs were corrected by the caller: so is B
         inner_state = _carry(inner_state, _delta(state["model"], model), opts)
-    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
-    diag.set_pairs(hi_pairs.S, hi_pairs.Y)
     first = warm_start
     it = streak = 0
     reason = "max_iter"
@@ -333,14 +338,9 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             break
         poor = rho is not None and rho > opts.model_tol
         if poor or (opts.max_fallbacks and streak >= opts.max_fallbacks):
-            counters.abandoned_low = True
             counters.decisions.append("mono:model" if poor else "mono:subproblem")
-            out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
-                             seed=Pairs(list(diag.S), list(diag.Y)),
-                             exact_gradient=exact_gradient, checked=True)
-            counters.mono_fallbacks += out.iterations
-            return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, hi_pairs),
-                    {"pairs": hi_pairs, "inner": inner_state, "model": model})
+            return _as_mono(apply, z, G, stop, max_iter, it, opts, counters, diag,
+                            exact_gradient, hi_pairs, inner_state, model, checked=True)
         r0 = kkt_abs(z, G)
         if first:
             eta_f, cap = opts.warm_rtol, opts.warm_max_iter
@@ -407,6 +407,24 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             G = exact_gradient(z)
             counters.recomputes += 1
     return (LevelOutcome(z, G, reason, it, hi_pairs),
+            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+
+
+def _as_mono(apply: Callable, z: np.ndarray, G: np.ndarray, stop: Callable, max_iter: int,
+             it: int, opts: BiOptions, counters: Counters, diag: DiagonalBFGS,
+             exact_gradient: Optional[Callable], hi_pairs: Pairs, inner_state, model,
+             checked: bool = False) -> tuple[LevelOutcome, dict]:
+    """Finish a Bi-PQN level as Mono-PQN on the high-fidelity pairs gathered so far.
+
+    The outcome carries Mono-PQN's final pairs (what the model knows at the
+    end, for a later solve's memory); the state keeps the Bi-PQN pairs.
+    """
+    counters.abandoned_low = True
+    out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
+                     seed=Pairs(list(diag.S), list(diag.Y)),
+                     exact_gradient=exact_gradient, checked=checked)
+    counters.mono_fallbacks += out.iterations
+    return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs),
             {"pairs": hi_pairs, "inner": inner_state, "model": model})
 
 
