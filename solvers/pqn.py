@@ -74,7 +74,7 @@ _INNER_DOC = """
         high MVP at its answer, which also gives a free secant pair and the
         first model check. ``high``: the previous start, ``A x0`` first and a
         first subproblem solved to ``warm_rtol``. Pairs carried in with
-        ``state=`` join the model after either start.
+        ``state=`` seed only the Mono-PQN model of fallback steps.
     inner_rtol : float
         Largest relative tolerance of a subproblem: it is solved until its
         residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
@@ -263,8 +263,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     x = np.maximum(ctx.x0, 0.0)
     counters = Counters()
     lows = [ctx.low[k].matvec for k in names]
-    # pairs of ``state=``: their low products are made on this LCP's A_low (counted)
-    carried = _carried(ctx, solver)
+    carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
     stop = ConfirmedReport(ctx)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
@@ -275,15 +274,10 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
                                                    floor)
     else:
         g = ctx.A @ x + ctx.b
-    if carried is not None:          # older than the start's free pair
-        level_state = dict(level_state or {})
-        own = level_state.get("pairs") or Pairs()
-        level_state["pairs"] = Pairs(carried.S + own.S, carried.Y + own.Y,
-                                     carried.B0S + own.B0S)
     out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p,
                           counters, state=level_state, warm_start=not from_low,
                           exact_gradient=stop.exact, floor=floor, model_error=rho,
-                          prev_residual=r_prev)
+                          prev_residual=r_prev, fallback_seed=carried)
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
     return _finish(ctx, out, counters, out.pairs)
@@ -318,10 +312,12 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
 
     Secant memory, as for ``mono-pqn``: ``result.state`` holds the final
     high-fidelity pairs (Mono-PQN's, when the low model was abandoned), and
-    ``state=`` adds pairs to the model after the start. Each carried pair
-    costs one low-fidelity product ``A_low s`` to rebuild the model on this
-    LCP's ``A_low`` (counted, so in the E-MVPs), none when the start's model
-    check already hands the solve to Mono-PQN.
+    ``state=`` starts the Mono-PQN model of the fallback steps and of an
+    abandoned low model from the given pairs, at no cost. They stay out of
+    the bi-fidelity model ``B``: pairs of a previous step's ``A`` would make
+    it less accurate than a good ``A_low`` alone, and each would cost a
+    low-fidelity product ``A_low s`` (docs/benchmarks.md, "Quasi-Newton memory
+    across time steps").
     """
     return _run_chain(ctx, p, _low_names(ctx, (p.low,) if p.low else (), "bi-pqn"), "bi-pqn")
 

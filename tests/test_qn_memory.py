@@ -111,21 +111,33 @@ def test_mono_pqn_from_the_exact_pairs_of_a_previous_solve_needs_fewer_mvps():
     assert warm.info["secant_memory"].rank >= memory.rank
 
 
-def test_bi_pqn_counts_the_low_products_of_its_carried_pairs():
+def test_bi_pqn_keeps_carried_pairs_out_of_its_low_fidelity_model():
     A = _spd(40, 1e2, 4)
     rng = np.random.default_rng(5)
     E = 1e-3 * rng.standard_normal((40, 40))
     b = rng.standard_normal(40)
-    low = {"low": A + (E + E.T) / 2}
+    low = {"low": A + (E + E.T) / 2}                      # a good low: B = A_low + U U' - V V'
     first = lcpbench.solve(A, b, solver="bi-pqn", tol=1e-9, low=low, low_cost=0.1)
     memory = first.state
     assert isinstance(memory, SecantMemory) and memory.rank > 0
     again = lcpbench.solve(A, b, solver="bi-pqn", tol=1e-9, low=low, low_cost=0.1,
                            state=memory)
     assert again.solved and again.info["carried_pairs"] == memory.rank
-    # the model B = A_low + U U' - V V' needs A_low s of every carried pair: counted
-    assert again.lofi_mvps["low"] >= first.lofi_mvps["low"] + memory.rank - 2
-    assert again.mvps <= first.mvps
+    # no low product rebuilds the carried pairs, and the bi-fidelity steps are unchanged
+    assert (again.mvps, again.lofi_mvps) == (first.mvps, first.lofi_mvps)
+
+
+def test_bi_pqn_with_a_useless_low_uses_carried_pairs_in_its_mono_model():
+    A = _spd(40, 1e3, 7)
+    b = np.random.default_rng(8).standard_normal(40)
+    low = {"low": np.eye(40)}                             # judged useless: Mono-PQN takes over
+    cold = lcpbench.solve(A, b, solver="bi-pqn", tol=1e-9, low=low, low_cost=0.1)
+    assert cold.solved and cold.info["abandoned_low"]
+    memory = cold.state
+    np.testing.assert_allclose(A @ memory.S, memory.Y, atol=1e-9)
+    warm = lcpbench.solve(A, b, solver="bi-pqn", tol=1e-9, low=low, low_cost=0.1, state=memory)
+    assert warm.solved and warm.mvps < cold.mvps, (warm.mvps, cold.mvps)
+    assert warm.lofi_mvps == cold.lofi_mvps
 
 
 def test_a_wrong_memory_is_a_clear_error():

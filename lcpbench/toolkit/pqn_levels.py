@@ -261,8 +261,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
              warm_start: bool = True,
              exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
              floor: float = 0.0, model_error: Optional[float] = None,
-             prev_residual: Optional[float] = None, adaptive: bool = True
-             ) -> tuple[LevelOutcome, dict]:
+             prev_residual: Optional[float] = None, adaptive: bool = True,
+             fallback_seed: Optional[Pairs] = None) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
     Each outer iteration solves the paper's PQN subproblem,
@@ -297,6 +297,12 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     After ``max_fallbacks`` in a row the level finishes as Mono-PQN
     (``mono:subproblem``).
 
+    ``fallback_seed``: older pairs of ``Q`` (e.g. a previous time step's,
+    only approximately ``Q s``) that start the Mono-PQN model of the
+    fallback steps and of an abandoned low model; they stay out of ``B``,
+    which they would make less accurate than ``lows[0]`` alone for a good
+    low fidelity, and where each would cost a product with ``lows[0]``.
+
     Warm start (``warm_start=True``, the old start kept as ``start=high``):
     the first subproblem is solved to ``warm_rtol``. The paper's start is
     :func:`low_start`, whose answer comes in through ``state``.
@@ -313,7 +319,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
     diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
-    diag.set_pairs(hi_pairs.S, hi_pairs.Y)
+    older = fallback_seed or Pairs()
+    diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
     inner_state = state.get("inner")
     if model_error is not None and model_error > opts.model_tol:
         # judged useless before the first step: no low product to rebuild the model

@@ -11,6 +11,10 @@ PQN solvers:
 * :class:`OperatorBFGS` — ``B0`` a (low-fidelity) operator: the Bi-PQN model
   ``B = A_low + U U' - V V'`` (the paper's bi-fidelity quasi-Newton model).
 
+:class:`SecantMemory` is the pairs a PQN solve hands back and takes as a warm
+start (``result.state``, ``state=``), with their mapping onto another LCP's
+unknowns (time stepping with a changing contact set).
+
 Pairs with too little curvature (``y's <= curvature_tol * ||s|| ||y||``) are
 skipped, as in the authors' code, so ``B`` stays positive definite whenever
 ``B0`` is.

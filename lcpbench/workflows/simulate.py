@@ -14,7 +14,9 @@ mobility, ``U_nc``, fidelity cost timing, solve, verification, update);
 without warm start is labelled ``"<solver> (cold)"`` so the online table keeps
 it apart from the warm-started one. ``info``
 holds the rest (setup and update seconds, mobility solves outside the counted
-MVPs, warm-start entries, overlap check).
+MVPs, warm-start entries, overlap check, ``qn_memory``: whether the solve
+started from the previous step's secant pairs, ``qn_pairs``: how many of them
+survived the mapping onto the step's contacts).
 
 Resuming: after every step the simulation's state is checkpointed (see
 :mod:`lcpbench.workflows.checkpoint`) before its row is written, so rerunning the same
