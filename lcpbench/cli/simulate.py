@@ -34,7 +34,7 @@ def add_simulate_parser(sub) -> None:
                    help="start every solve from zero instead of the previous step's forces")
     p.add_argument("--qn-memory", action=argparse.BooleanOptionalAction, default=None,
                    help="start each PQN solve's quasi-Newton model from the previous step's "
-                        "secant pairs, mapped by contact identity (default: off; "
+                        "secant pairs, mapped by contact identity (default: on; "
                         "docs/benchmarks.md, \"Quasi-Newton memory across time steps\")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_simulate)

@@ -465,7 +465,11 @@ class LatticeScene:
         qn_memory : bool
             Start the solver's quasi-Newton model from the previous step's
             secant pairs (:meth:`carry_memory`; the PQN solvers use it, others
-            ignore it) and keep this solve's pairs for the next step.
+            ignore it) and keep this solve's pairs for the next step. Off by
+            default so that a stepped scene follows the trajectory ``lcpbench
+            generate`` stores; ``lcpbench simulate`` turns it on (it saves
+            PQN solvers a third to a half of their MVPs: docs/benchmarks.md,
+            "Quasi-Newton memory across time steps").
         params : dict, optional
             Extra solver parameters.
 
