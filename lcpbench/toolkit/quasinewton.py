@@ -132,7 +132,12 @@ class SecantMemory:
 
         The solver's model only preconditions: every step is still measured with
         the new ``A`` (one counted product), so an inexact pair costs
-        iterations, never correctness.
+        iterations, never correctness. The pairs are kept rather than rescaled
+        or dropped because that measured best: on the lattice simulations
+        (docs/benchmarks.md, "Quasi-Newton memory across time steps") every
+        mapped pair halved Mono-PQN's MVPs per step, keeping only the newest
+        pairs gained less, and the share threshold made no difference there
+        (it guards contact sets that change more than a packing cluster's).
 
         Parameters
         ----------
