@@ -36,7 +36,7 @@ from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.toolkit.pqn_levels import (BiOptions, Counters, MonoOptions, Pairs, bi_level,
                                          low_start, mono_level)
-from lcpbench.toolkit.quasinewton import free_secant_pair
+from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
 
@@ -73,8 +73,8 @@ _INNER_DOC = """
         from ``x0`` first, with no high-fidelity product, then take the first
         high MVP at its answer, which also gives a free secant pair and the
         first model check. ``high``: the previous start, ``A x0`` first and a
-        first subproblem solved to ``warm_rtol`` (also used when ``state``
-        carries a previous time step's pairs).
+        first subproblem solved to ``warm_rtol``. Pairs carried in with
+        ``state=`` seed only the Mono-PQN model of fallback steps.
     inner_rtol : float
         Largest relative tolerance of a subproblem: it is solved until its
         residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
@@ -162,26 +162,34 @@ MultiPQNParams.__doc__ = BiPQNParams.__doc__.replace("Parameters of bi-pqn.", "P
     high-fidelity residual, which only the top level sees."""
 
 
-def _seed(ctx: SolverContext) -> Optional[Pairs]:
-    """High-fidelity pairs from a previous solve's ``state`` (time stepping)."""
+def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
+    """The pairs of ``state=`` (a :class:`SecantMemory` with ``n`` rows), checked."""
     st = ctx.state
-    if isinstance(st, dict) and isinstance(st.get("pairs"), Pairs) and st.get("n") == ctx.n:
-        return st["pairs"]
-    return None
+    if st is None:
+        ctx.info["carried_pairs"] = 0
+        return None
+    if not isinstance(st, SecantMemory):
+        raise TypeError(f"{solver}: state= takes the SecantMemory of a previous PQN solve "
+                        f"(result.state), got {type(st).__name__}")
+    st.check(ctx.n, solver)
+    ctx.info["carried_pairs"] = st.rank
+    S, Y = st.pairs()
+    return Pairs(S, Y, [None] * len(S)) if S else None
 
 
-def _finish(ctx: SolverContext, out, counters: Counters, state: dict) -> SolveResult:
+def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveResult:
     ctx.info.update(counters.as_dict())
-    state["n"] = ctx.n
+    memory = SecantMemory.from_pairs(pairs.S, pairs.Y, ctx.n)
+    ctx.info["secant_memory"] = memory
     if out.reason == "unbounded":
         return ctx.finish(out.z, out.G, Status.infeasible,
                           "the quadratic is unbounded below along the search direction: the LCP "
-                          "has no solution (A not PSD, or -b outside the cone)", state=state)
+                          "has no solution (A not PSD, or -b outside the cone)", state=memory)
     if out.reason == "stationary":
         return ctx.finish(out.z, out.G, Status.stagnated,
                           "no descent direction: the projected gradient vanishes to round-off",
-                          state=state)
-    return ctx.finish(out.z, out.G, state=state)
+                          state=memory)
+    return ctx.finish(out.z, out.G, state=memory)
 
 
 def _start(ctx: SolverContext):
@@ -205,22 +213,33 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     kkt-error. Choices the paper leaves open, taken from the authors' code:
     the BB-scaled initial diagonal with ``gamma = 0.8``. If an inexact prox
     gives no descent, the projected-gradient direction is used (counted as
-    ``gradient_fallbacks``). ``result.state`` carries the secant pairs; pass
-    it back as ``state=`` to start the next time step's model from them.
+    ``gradient_fallbacks``).
+
+    Secant memory: ``result.state`` (also ``result.info['secant_memory']``) is
+    a :class:`~lcpbench.toolkit.quasinewton.SecantMemory`, the pairs of the
+    final model (the carried ones that passed the curvature test, then this
+    solve's, at most ``memory`` or n). ``lcpbench.solve(..., state=memory)``
+    starts the model from them (``info['carried_pairs']``), older than the
+    free pair of the warm start; they cost no product. The memory must have n
+    rows (a ``ValueError``, else a ``TypeError`` for another object: the
+    solve returns ``failed`` naming it); for a changed contact set map it
+    first (``SecantMemory.remap``, or the lattice scene's ``carry_memory``).
+    Pairs of an earlier, different ``A`` are only approximate curvature: they
+    precondition, every step is still measured with this ``A``.
     """
     x, g = _start(ctx)
     counters = Counters()
     stop = ConfirmedReport(ctx)
-    seed = _seed(ctx)
+    seed = _carried(ctx, "mono-pqn")
     pair = free_secant_pair(x, g, ctx.b) if p.free_pair else None
     if pair is not None:
-        seed = Pairs(list(seed.S) if seed else [], list(seed.Y) if seed else [])
+        seed = seed or Pairs()
         seed.add(*pair)
         ctx.info["free_pair"] = True
     out = mono_level(ctx.A.matvec, x, g, stop, sys.maxsize, p, counters,
                      seed=seed, exact_gradient=stop.exact)
     ctx.info["rank"] = len(out.pairs)
-    return _finish(ctx, out, counters, {"pairs": out.pairs})
+    return _finish(ctx, out, counters, out.pairs)
 
 
 def _low_names(ctx: SolverContext, wanted: tuple, solver: str) -> list[str]:
@@ -239,19 +258,17 @@ def _low_names(ctx: SolverContext, wanted: tuple, solver: str) -> list[str]:
     return list(wanted)
 
 
-def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveResult:
+def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
+               ) -> SolveResult:
     x = np.maximum(ctx.x0, 0.0)
     counters = Counters()
     lows = [ctx.low[k].matvec for k in names]
-    st = ctx.state if isinstance(ctx.state, dict) and ctx.state.get("n") == ctx.n and \
-        ctx.state.get("lows") == names else None
-    # previous step's pairs: their low products are redone on this step's A_low
-    level_state = {"pairs": Pairs(list(st["pairs"].S), list(st["pairs"].Y),
-                                  [None] * len(st["pairs"]))} if st else None
+    carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
     stop = ConfirmedReport(ctx)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
-    from_low = p.start == "low" and level_state is None
+    from_low = p.start == "low"
+    level_state = None
     if from_low:
         x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, stop.exact,
                                                    floor)
@@ -260,10 +277,10 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str]) -> SolveRes
     out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p,
                           counters, state=level_state, warm_start=not from_low,
                           exact_gradient=stop.exact, floor=floor, model_error=rho,
-                          prev_residual=r_prev)
+                          prev_residual=r_prev, fallback_seed=carried)
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
-    return _finish(ctx, out, counters, {"pairs": state["pairs"], "lows": names})
+    return _finish(ctx, out, counters, out.pairs)
 
 
 @register_solver("bi-pqn", BiPQNParams, multifidelity=True)
@@ -291,11 +308,18 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     paper: if the model is not positive along ``p``, ``p`` does not descend,
     or the subproblem is unbounded (an indefinite ``A_low``), a Mono-PQN step on the high-fidelity pairs is taken
     instead (``info['mono_fallbacks']``). The paper's choices: full memory,
-    BFGS updates stored unrolled. ``result.state`` carries the high-fidelity
-    pairs for the next time step (the model is rebuilt on the new ``A_low``
-    with one low MVP per pair).
+    BFGS updates stored unrolled.
+
+    Secant memory, as for ``mono-pqn``: ``result.state`` holds the final
+    high-fidelity pairs (Mono-PQN's, when the low model was abandoned), and
+    ``state=`` starts the Mono-PQN model of the fallback steps and of an
+    abandoned low model from the given pairs, at no cost. They stay out of
+    the bi-fidelity model ``B``: pairs of a previous step's ``A`` would make
+    it less accurate than a good ``A_low`` alone, and each would cost a
+    low-fidelity product ``A_low s`` (docs/benchmarks.md, "Quasi-Newton memory
+    across time steps").
     """
-    return _run_chain(ctx, p, _low_names(ctx, (p.low,) if p.low else (), "bi-pqn"))
+    return _run_chain(ctx, p, _low_names(ctx, (p.low,) if p.low else (), "bi-pqn"), "bi-pqn")
 
 
 @register_solver("multi-pqn", MultiPQNParams, multifidelity=True)
@@ -309,4 +333,4 @@ def multi_pqn(ctx: SolverContext, p: MultiPQNParams) -> SolveResult:
     its subproblem pairs across calls with the correction of the level above.
     With one operator it is ``bi-pqn``.
     """
-    return _run_chain(ctx, p, _low_names(ctx, p.lows, "multi-pqn"))
+    return _run_chain(ctx, p, _low_names(ctx, p.lows, "multi-pqn"), "multi-pqn")

@@ -32,6 +32,10 @@ def add_simulate_parser(sub) -> None:
                         "smallest radius (default 0.01)")
     p.add_argument("--no-warm-start", action="store_true",
                    help="start every solve from zero instead of the previous step's forces")
+    p.add_argument("--qn-memory", action=argparse.BooleanOptionalAction, default=None,
+                   help="start each PQN solve's quasi-Newton model from the previous step's "
+                        "secant pairs, mapped by contact identity (default: on; "
+                        "docs/benchmarks.md, \"Quasi-Newton memory across time steps\")")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_simulate)
 
@@ -40,13 +44,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
-    from lcpbench.workflows.simulate import DEFAULT_OVERLAP_TOL, Interrupted, simulate
+    from lcpbench.workflows.simulate import (DEFAULT_OVERLAP_TOL, DEFAULT_QN_MEMORY,
+                                             Interrupted, simulate)
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
     try:
         rows = simulate(args.scene, args.solver or [SIMULATE_SOLVER], args.steps, out,
-                        warm_start=not args.no_warm_start, progress=not args.quiet,
+                        warm_start=not args.no_warm_start,
+                        qn_memory=DEFAULT_QN_MEMORY if args.qn_memory is None else args.qn_memory,
+                        progress=not args.quiet,
                         tol=args.tol, stop=args.stop, max_emvps=args.max_emvps,
                         overlap_tol=DEFAULT_OVERLAP_TOL if args.overlap_tol is None
                         else args.overlap_tol,

@@ -261,8 +261,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
              warm_start: bool = True,
              exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
              floor: float = 0.0, model_error: Optional[float] = None,
-             prev_residual: Optional[float] = None, adaptive: bool = True
-             ) -> tuple[LevelOutcome, dict]:
+             prev_residual: Optional[float] = None, adaptive: bool = True,
+             fallback_seed: Optional[Pairs] = None) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
     Each outer iteration solves the paper's PQN subproblem,
@@ -297,6 +297,12 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     After ``max_fallbacks`` in a row the level finishes as Mono-PQN
     (``mono:subproblem``).
 
+    ``fallback_seed``: older pairs of ``Q`` (e.g. a previous time step's,
+    only approximately ``Q s``) that start the Mono-PQN model of the
+    fallback steps and of an abandoned low model; they stay out of ``B``,
+    which they would make less accurate than ``lows[0]`` alone for a good
+    low fidelity, and where each would cost a product with ``lows[0]``.
+
     Warm start (``warm_start=True``, the old start kept as ``start=high``):
     the first subproblem is solved to ``warm_rtol``. The paper's start is
     :func:`low_start`, whose answer comes in through ``state``.
@@ -312,14 +318,20 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     base = lows[0]
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
+    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
+    older = fallback_seed or Pairs()
+    diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
+    inner_state = state.get("inner")
+    if model_error is not None and model_error > opts.model_tol:
+        # judged useless before the first step: no low product to rebuild the model
+        counters.decisions.append("mono:model")
+        return _as_mono(apply, z, G, stop, max_iter, 0, opts, counters, diag, exact_gradient,
+                        hi_pairs, inner_state, None)
     hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
         b if b is not None else base(s) for s, b in zip(hi_pairs.S, hi_pairs.B0S)])
     model = _rebuild(base, n, hi_pairs)
-    inner_state = state.get("inner")
     if state.get("model") is not None:  # our pairs were corrected by the caller: so is B
         inner_state = _carry(inner_state, _delta(state["model"], model), opts)
-    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
-    diag.set_pairs(hi_pairs.S, hi_pairs.Y)
     first = warm_start
     it = streak = 0
     reason = "max_iter"
@@ -333,14 +345,9 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             break
         poor = rho is not None and rho > opts.model_tol
         if poor or (opts.max_fallbacks and streak >= opts.max_fallbacks):
-            counters.abandoned_low = True
             counters.decisions.append("mono:model" if poor else "mono:subproblem")
-            out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
-                             seed=Pairs(list(diag.S), list(diag.Y)),
-                             exact_gradient=exact_gradient, checked=True)
-            counters.mono_fallbacks += out.iterations
-            return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, hi_pairs),
-                    {"pairs": hi_pairs, "inner": inner_state, "model": model})
+            return _as_mono(apply, z, G, stop, max_iter, it, opts, counters, diag,
+                            exact_gradient, hi_pairs, inner_state, model, checked=True)
         r0 = kkt_abs(z, G)
         if first:
             eta_f, cap = opts.warm_rtol, opts.warm_max_iter
@@ -407,6 +414,24 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             G = exact_gradient(z)
             counters.recomputes += 1
     return (LevelOutcome(z, G, reason, it, hi_pairs),
+            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+
+
+def _as_mono(apply: Callable, z: np.ndarray, G: np.ndarray, stop: Callable, max_iter: int,
+             it: int, opts: BiOptions, counters: Counters, diag: DiagonalBFGS,
+             exact_gradient: Optional[Callable], hi_pairs: Pairs, inner_state, model,
+             checked: bool = False) -> tuple[LevelOutcome, dict]:
+    """Finish a Bi-PQN level as Mono-PQN on the high-fidelity pairs gathered so far.
+
+    The outcome carries Mono-PQN's final pairs (what the model knows at the
+    end, for a later solve's memory); the state keeps the Bi-PQN pairs.
+    """
+    counters.abandoned_low = True
+    out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
+                     seed=Pairs(list(diag.S), list(diag.Y)),
+                     exact_gradient=exact_gradient, checked=checked)
+    counters.mono_fallbacks += out.iterations
+    return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs),
             {"pairs": hi_pairs, "inner": inner_state, "model": model})
 
 

@@ -14,13 +14,16 @@ mobility, ``U_nc``, fidelity cost timing, solve, verification, update);
 without warm start is labelled ``"<solver> (cold)"`` so the online table keeps
 it apart from the warm-started one. ``info``
 holds the rest (setup and update seconds, mobility solves outside the counted
-MVPs, warm-start entries, overlap check).
+MVPs, warm-start entries, overlap check, ``qn_memory``: whether the solve
+started from the previous step's secant pairs, ``qn_pairs``: how many of them
+survived the mapping onto the step's contacts).
 
 Resuming: after every step the simulation's state is checkpointed (see
 :mod:`lcpbench.workflows.checkpoint`) before its row is written, so rerunning the same
 command after a kill continues each simulation from its last finished step, and every
 step appears exactly once in ``results.csv``; a larger ``steps`` extends finished
-simulations. SIGTERM stops the run between two steps' writes with :class:`Interrupted`.
+simulations. SIGTERM stops the run with :class:`Interrupted` once the step under way is
+written (a solve cut short would be stored as a failed step).
 
 Physical sanity: a step whose overlap exceeds ``overlap_tol`` (a fraction of
 the smallest radius) is flagged in ``message`` and ``info``; for frictionless
@@ -53,7 +56,7 @@ from lcpbench.core.clock import utc_now
 from lcpbench.workflows.checkpoint import (Checkpoint, checkpoint_path, load_checkpoint,
                                            save_checkpoint)
 
-__all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "Interrupted"]
+__all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "DEFAULT_QN_MEMORY", "Interrupted"]
 
 
 class Interrupted(RuntimeError):
@@ -61,6 +64,9 @@ class Interrupted(RuntimeError):
 
 #: Default overlap tolerance, as a fraction of the smallest radius.
 DEFAULT_OVERLAP_TOL = 1e-2
+
+#: Default of ``qn_memory`` (see docs/benchmarks.md, "Quasi-Newton memory across time steps").
+DEFAULT_QN_MEMORY = True
 
 
 def _check_solver(spec: str, lows: Sequence[str], scene_spec: str):
@@ -89,12 +95,18 @@ def _sim_key(scene: str, solver: str, warm: bool) -> str:
     return f"online|{scene}|{solver}|warm={int(warm)}"
 
 
-def _raise_interrupted(signum, frame):
-    raise Interrupted("stopped by SIGTERM")
+#: Set by SIGTERM; the step loop stops at the next step boundary (a solve is never cut
+#: short: an exception raised inside it would be recorded as a failed solve).
+_TERM = threading.Event()
+
+
+def _request_stop(signum, frame):
+    _TERM.set()
 
 
 def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int,
-             out_dir: Union[str, Path], *, warm_start: bool = True, progress: bool = True,
+             out_dir: Union[str, Path], *, warm_start: bool = True,
+             qn_memory: bool = DEFAULT_QN_MEMORY, progress: bool = True,
              tol: float = 1e-8, stop: str = "paper", max_emvps: float = 5000.0,
              max_seconds: Optional[float] = None,
              overlap_tol: float = DEFAULT_OVERLAP_TOL,
@@ -117,6 +129,14 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         finished step (same settings required; a larger ``steps`` extends it).
     warm_start : bool
         Start each solve from the previous step's forces matched by pair identity.
+    qn_memory : bool
+        Start each PQN solve's quasi-Newton model from the previous step's
+        secant pairs, mapped onto the new contacts by pair identity (the
+        scene's ``carry_memory``); other solvers ignore it. On by default: it
+        cut Mono-PQN's mean E-MVPs per step by a third to a half on the
+        lattice runs of docs/benchmarks.md. Part of the simulation's settings:
+        a resume with the other choice is refused (simulations stored before
+        the switch existed ran without the memory).
     progress : bool
         Show a tqdm progress bar per simulation (on stderr).
     tol, stop : stop rule of every solve (``paper`` or ``kkt``).
@@ -171,11 +191,13 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         done = store.done_ids()
         resumed = {}
         for s in specs:
-            settings = _settings(scene_spec, s, tol, stop, warm_start, max_emvps, max_seconds,
-                                 overlap_tol)
+            settings = _settings(scene_spec, s, tol, stop, warm_start, qn_memory, max_emvps,
+                                 max_seconds, overlap_tol)
             path = checkpoint_path(store.path, _sim_key(scene_spec, s, warm_start))
             if path.exists():
                 ckpt = load_checkpoint(path)
+                # checkpoints from before the switch existed ran without the memory
+                ckpt.config = {"qn_memory": False, **ckpt.config}
                 if ckpt.config != settings:
                     changed = sorted(k for k in settings if settings[k] != ckpt.config.get(k))
                     raise ValueError(f"{store.path} holds the simulation of {scene_spec!r} with "
@@ -190,7 +212,8 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
                 resumed[s] = (path, None)
         old = store.read_meta() or {}
         config = {"scene": scene_spec, "solvers": specs, "steps": int(steps), "tol": tol,
-                  "stop": stop, "warm_start": bool(warm_start), "max_emvps": max_emvps,
+                  "stop": stop, "warm_start": bool(warm_start), "qn_memory": bool(qn_memory),
+                  "max_emvps": max_emvps,
                   "max_seconds": max_seconds, "overlap_tol": overlap_tol,
                   "scene_params": dataclasses.asdict(probe.params)}
         meta = dict(old)
@@ -206,17 +229,19 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         store.write_meta(meta)
         frames = []
         in_main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGTERM, _raise_interrupted) if in_main else None
+        _TERM.clear()
+        previous = signal.signal(signal.SIGTERM, _request_stop) if in_main else None
         try:
             for spec in specs:
                 scene = probe if spec == specs[0] else make_scene(scene_spec)
                 name, info = infos[spec]
                 path, ckpt = resumed[spec]
-                settings = _settings(scene_spec, spec, tol, stop, warm_start, max_emvps,
-                                     max_seconds, overlap_tol)
+                settings = _settings(scene_spec, spec, tol, stop, warm_start, qn_memory,
+                                     max_emvps, max_seconds, overlap_tol)
                 frames.append(_one_simulation(
                     store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
-                    tol, stop, budget, overlap_tol, progress, tqdm, path, ckpt, settings))
+                    qn_memory, tol, stop, budget, overlap_tol, progress, tqdm, path, ckpt,
+                    settings))
         except Interrupted:
             raise Interrupted(f"stopped by SIGTERM; every finished step is in {store.path}, "
                               "run the same command again to resume") from None
@@ -228,16 +253,17 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
-def _settings(scene_spec: str, spec: str, tol: float, stop: str, warm: bool, max_emvps,
-              max_seconds, overlap_tol: float) -> dict:
+def _settings(scene_spec: str, spec: str, tol: float, stop: str, warm: bool, qn_memory: bool,
+              max_emvps, max_seconds, overlap_tol: float) -> dict:
     """What a resumed simulation must share with the one it continues (not the step count)."""
     return {"scene": scene_spec, "solver": spec, "tol": float(tol), "stop": stop,
-            "warm_start": bool(warm), "max_emvps": max_emvps, "max_seconds": max_seconds,
-            "overlap_tol": float(overlap_tol)}
+            "warm_start": bool(warm), "qn_memory": bool(qn_memory), "max_emvps": max_emvps,
+            "max_seconds": max_seconds, "overlap_tol": float(overlap_tol)}
 
 
 def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, spec: str,
-                    name: str, info, steps: int, warm_start: bool, tol: float, stop: str,
+                    name: str, info, steps: int, warm_start: bool, qn_memory: bool,
+                    tol: float, stop: str,
                     budget: Budget, overlap_tol: float, progress: bool, tqdm, ckpt_path: Path,
                     ckpt: Optional[Checkpoint], settings: dict) -> pd.DataFrame:
     rule = make_stop_rule(stop, tol)
@@ -265,11 +291,13 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                leave=False)
     try:
         while scene.step_index < steps:
+            if _TERM.is_set():
+                raise Interrupted("stopped by SIGTERM")
             started = utc_now()
             k = scene.step_index
             try:
                 rec = scene.step(spec, tol=tol, stop=stop, budget=budget,
-                                 warm_start=warm_start)
+                                 warm_start=warm_start, qn_memory=qn_memory)
             except ValueError as exc:  # diverged forces or a configuration the model rejects
                 row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, k, tol,
                                 rule.kind, solver_params, problem_params)
@@ -289,7 +317,7 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                      "setup_solves": rec.setup_solves, "update_solves": rec.update_solves,
                      "warm_entries": rec.warm_entries,
                      "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
-                     **(res.info or {})}
+                     **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs}
             row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, rec.step, tol,
                             rule.kind, solver_params, problem_params)
             row.update({

@@ -132,6 +132,30 @@ class Contacts:
         """``(i, j)`` per column, for matching forces across time steps."""
         return [(int(i), int(j)) for i, j in self.pairs]
 
+    def index_of(self, old_pairs: np.ndarray) -> np.ndarray:
+        """Where each of these contacts was among ``old_pairs`` (pair identity), -1 if new.
+
+        Parameters
+        ----------
+        old_pairs : ndarray, shape (k, 2)
+            Pair identities of a previous step's contacts.
+
+        Returns
+        -------
+        ndarray of int, shape (n,)
+            ``index[l] = k`` when contact ``l`` is the pair ``old_pairs[k]``, else ``-1``;
+            ``old_vector[index]`` (where ``index >= 0``) moves a previous step's
+            per-contact vector onto these contacts.
+        """
+        old_pairs = np.asarray(old_pairs, dtype=np.intp).reshape(-1, 2)
+        out = np.full(self.n, -1, dtype=np.intp)
+        if not self.n or not len(old_pairs):
+            return out
+        lookup = {(int(i), int(j)): k for k, (i, j) in enumerate(old_pairs)}
+        for l, (i, j) in enumerate(self.pairs):
+            out[l] = lookup.get((int(i), int(j)), -1)
+        return out
+
     def carry(self, old_pairs: np.ndarray, old_x: np.ndarray) -> np.ndarray:
         """Forces of a previous step mapped onto these contacts by pair identity.
 
@@ -153,14 +177,9 @@ class Contacts:
         if len(old_pairs) != len(old_x):
             raise ValueError(f"carry: {len(old_pairs)} pairs but {len(old_x)} forces; pass "
                              "the pairs and forces of the same step")
+        index = self.index_of(old_pairs)
         out = np.zeros(self.n)
-        if not self.n or not len(old_pairs):
-            return out
-        lookup = {(int(i), int(j)): k for k, (i, j) in enumerate(old_pairs)}
-        for l, (i, j) in enumerate(self.pairs):
-            k = lookup.get((int(i), int(j)))
-            if k is not None:
-                out[l] = old_x[k]
+        out[index >= 0] = old_x[index[index >= 0]]
         out[~np.isfinite(out)] = 0.0
         return np.maximum(out, 0.0)
 

@@ -47,6 +47,7 @@ from scipy.spatial.distance import pdist
 
 from lcpbench.core.registry import make_scene, register_scene
 from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.toolkit.quasinewton import SecantMemory
 
 from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
 from .geometry import pair_gaps
@@ -157,6 +158,11 @@ class StepRecord:
         Mobility solves outside the solver's counted MVPs.
     warm_entries : int
         Non-zero entries of the warm start carried from the previous step.
+    qn_memory : bool
+        The solve started from the previous step's secant pairs (``qn_memory=True``).
+    qn_pairs : int
+        Secant pairs that survived the mapping onto this step's contacts (0
+        without memory, or when none survived).
     """
 
     step: int
@@ -172,6 +178,8 @@ class StepRecord:
     setup_solves: int
     update_solves: int
     warm_entries: int = 0
+    qn_memory: bool = False
+    qn_pairs: int = 0
 
 
 def lattice_configuration(m: int, spacing: float, jitter: float,
@@ -294,6 +302,7 @@ class LatticeScene:
         self.step_index = 0
         self._prev_pairs = np.empty((0, 2), dtype=np.intp)
         self._prev_x = np.empty(0)
+        self._prev_memory: Optional[SecantMemory] = None
         self._problem: Optional[ContactProblem] = None
 
     # ------------------------------------------------------------------ construction
@@ -315,11 +324,16 @@ class LatticeScene:
 
         Everything else (radii, parameters) follows from ``params``, so
         ``set_state(get_state())`` on a scene made from the same parameters continues the
-        same trajectory.
+        same trajectory. ``memory_S`` and ``memory_Y`` hold the previous solve's
+        secant pairs (``qn_memory=True``; no columns otherwise).
         """
+        mem = self._prev_memory
+        empty = np.zeros((len(self._prev_pairs), 0))
         return {"centers": self.centers.copy(), "orientations": self.orientations.copy(),
                 "step_index": np.array(self.step_index), "prev_pairs": self._prev_pairs.copy(),
-                "prev_x": self._prev_x.copy()}
+                "prev_x": self._prev_x.copy(),
+                "memory_S": empty if mem is None else mem.S.copy(),
+                "memory_Y": empty if mem is None else mem.Y.copy()}
 
     def set_state(self, state: dict) -> None:
         """Restore what :meth:`get_state` returned (a ``ValueError`` names a mismatch)."""
@@ -332,6 +346,9 @@ class LatticeScene:
         self.step_index = int(state["step_index"])
         self._prev_pairs = np.asarray(state["prev_pairs"], dtype=np.intp).reshape(-1, 2)
         self._prev_x = np.asarray(state["prev_x"], dtype=np.float64)
+        S = np.asarray(state.get("memory_S", np.zeros((0, 0))), dtype=np.float64)
+        Y = np.asarray(state.get("memory_Y", np.zeros((0, 0))), dtype=np.float64)
+        self._prev_memory = SecantMemory(S, Y) if S.ndim == 2 and S.shape[1] else None
         self._problem = None
 
     def fidelity_knobs(self, name: str) -> dict:
@@ -366,6 +383,21 @@ class LatticeScene:
     def warm_start(self, problem: ContactProblem) -> np.ndarray:
         """The previous step's forces carried to ``problem``'s contacts by pair identity."""
         return problem.contacts.carry(self._prev_pairs, self._prev_x)
+
+    def carry_memory(self, problem: ContactProblem) -> Optional[SecantMemory]:
+        """The previous solve's secant pairs mapped onto ``problem``'s contacts by pair identity.
+
+        Rows of contacts that persist move to their new position, new contacts
+        get zero rows, and pairs that lost too much to vanished contacts or
+        lost their positive curvature are dropped (:meth:`SecantMemory.remap`,
+        which says why ``y`` is then only approximately ``A s``). None when
+        the previous solve left no memory or no pair survived.
+        """
+        if self._prev_memory is None or not problem.contacts.n:
+            return None
+        index = problem.contacts.index_of(self._prev_pairs)
+        memory = self._prev_memory.remap(index)
+        return memory if memory.rank else None
 
     def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None) -> ContactProblem:
         """The current step's contact problem (contacts, mobility, ``U_nc``, LCP).
@@ -418,8 +450,8 @@ class LatticeScene:
         return max_overlap(self.centers, self.radii), problem.extra_solves - before
 
     def step(self, solver: str = "bb-pgd", *, tol: float = 1e-8, stop: str = "paper",
-             budget=None, warm_start: bool = True, params: Optional[dict] = None
-             ) -> StepRecord:
+             budget=None, warm_start: bool = True, qn_memory: bool = False,
+             params: Optional[dict] = None) -> StepRecord:
         """Build, solve and advance one step.
 
         Parameters
@@ -430,6 +462,14 @@ class LatticeScene:
         budget : lcpbench.core.context.Budget, optional
         warm_start : bool
             Start from the previous step's forces matched by pair identity.
+        qn_memory : bool
+            Start the solver's quasi-Newton model from the previous step's
+            secant pairs (:meth:`carry_memory`; the PQN solvers use it, others
+            ignore it) and keep this solve's pairs for the next step. Off by
+            default so that a stepped scene follows the trajectory ``lcpbench
+            generate`` stores; ``lcpbench simulate`` turns it on (it saves
+            PQN solvers a third to a half of their MVPs: docs/benchmarks.md,
+            "Quasi-Newton memory across time steps").
         params : dict, optional
             Extra solver parameters.
 
@@ -443,17 +483,22 @@ class LatticeScene:
         problem = self.build(warm_start)
         t1 = time.perf_counter()
         lcp = problem.lcp
-        res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, params=params)
+        memory = self.carry_memory(problem) if qn_memory else None
+        res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, state=memory,
+                         params=params)
         t2 = time.perf_counter()
         step = self.step_index
         overlap, solves = self.advance(problem, res.x)
+        self._prev_memory = res.state if qn_memory and isinstance(res.state, SecantMemory) \
+            else None
         t3 = time.perf_counter()
         return StepRecord(step=step, n=lcp.n, result=res, x=np.asarray(res.x, float),
                           pairs=problem.contacts.pairs.copy(), setup_s=t1 - t0,
                           update_s=t3 - t2, total_s=t3 - t0, max_overlap=overlap,
                           min_gap=float(problem.contacts.gaps.min()) if lcp.n else float("nan"),
                           setup_solves=problem.setup_solves, update_solves=solves,
-                          warm_entries=0 if lcp.x0 is None else int(np.count_nonzero(lcp.x0)))
+                          warm_entries=0 if lcp.x0 is None else int(np.count_nonzero(lcp.x0)),
+                          qn_memory=bool(qn_memory), qn_pairs=0 if memory is None else memory.rank)
 
     def __repr__(self) -> str:
         P = self.params
