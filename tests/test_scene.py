@@ -334,7 +334,15 @@ def test_simulate_rows_and_report_table(tmp_path):
     assert len(rows) == 20
     res = pd.read_csv(tmp_path / "results.csv")
     assert len(res) == 20 and set(res["kind"]) == {"online"}
-    assert list(res["step"][:4]) == [0, 1, 2, 3]
+    # the two simulations take their steps in turn (same machine load for both)
+    assert list(res["step"][:4]) == [0, 0, 1, 1]
+    assert res["solver"][0] != res["solver"][1]
+    for _, part in res.groupby("solver"):
+        assert list(part["step"]) == list(range(10))
+    # only the multi-fidelity solver builds (and times) the low fidelity each step
+    setup = {s: [json.loads(i)["setup_solves"] for i in part["info"]]
+             for s, part in res.groupby("solver")}
+    assert max(setup["bb-pgd"]) < min(setup["bi-pqn:low=self"])
     assert res["solved"].astype(bool).all()
     assert (res["max_overlap"] <= 1e-2).all()
     assert (res["sim_total_s"] >= res["time_s"]).all()

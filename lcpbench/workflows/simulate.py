@@ -120,7 +120,9 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         :class:`lcpbench.problems.suspension.scene.LatticeParams`).
     solver_spec : str or list of str
         One or more solver specs (``bi-pqn:low=self``, ``bb-pgd``); each runs
-        its own simulation.
+        its own simulation. The simulations take their steps in turn (one step
+        each, round robin), so that their wall times are measured under the same
+        machine load; each builds only the low fidelities it uses.
     steps : int
         Time steps per simulation (>= 1).
     out_dir : str or Path
@@ -232,16 +234,18 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         _TERM.clear()
         previous = signal.signal(signal.SIGTERM, _request_stop) if in_main else None
         try:
-            for spec in specs:
+            sims = []
+            for k, spec in enumerate(specs):
                 scene = probe if spec == specs[0] else make_scene(scene_spec)
                 name, info = infos[spec]
                 path, ckpt = resumed[spec]
                 settings = _settings(scene_spec, spec, tol, stop, warm_start, qn_memory,
                                      max_emvps, max_seconds, overlap_tol)
-                frames.append(_one_simulation(
+                sims.append(_one_simulation(
                     store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
                     qn_memory, tol, stop, budget, overlap_tol, progress, tqdm, path, ckpt,
-                    settings))
+                    settings, _lows_for(spec, info, scene.params.low), k))
+            frames = _round_robin(sims)
         except Interrupted:
             raise Interrupted(f"stopped by SIGTERM; every finished step is in {store.path}, "
                               "run the same command again to resume") from None
@@ -251,6 +255,33 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         meta["finished"] = utc_now()
         store.write_meta(meta)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _lows_for(spec: str, info, scene_lows: Sequence[str]) -> tuple:
+    """The scene's low fidelities a solver uses: those it names, all for a multi-fidelity
+    solver that names none, none for a single-fidelity one (each low costs a mobility
+    set-up and a timed product per step, which would burden the others' total time)."""
+    if not info.multifidelity:
+        return ()
+    name, raw = parse_spec(spec)
+    named = requested_lows(dataclasses.asdict(make_params(name, info.params, raw)))
+    return tuple(named) if named else tuple(scene_lows)
+
+
+def _round_robin(sims: list) -> list:
+    """Advance every simulation one step in turn until all have finished, so that the
+    solvers' wall times are measured under the same machine load; returns each
+    simulation's rows."""
+    frames: list = [None] * len(sims)
+    active = list(range(len(sims)))
+    while active:
+        for k in list(active):
+            try:
+                next(sims[k])
+            except StopIteration as done:
+                frames[k] = done.value
+                active.remove(k)
+    return frames
 
 
 def _settings(scene_spec: str, spec: str, tol: float, stop: str, warm: bool, qn_memory: bool,
@@ -265,7 +296,9 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
                     name: str, info, steps: int, warm_start: bool, qn_memory: bool,
                     tol: float, stop: str,
                     budget: Budget, overlap_tol: float, progress: bool, tqdm, ckpt_path: Path,
-                    ckpt: Optional[Checkpoint], settings: dict) -> pd.DataFrame:
+                    ckpt: Optional[Checkpoint], settings: dict, lows: tuple, position: int):
+    """One simulation as a generator: it yields after every stored step and returns its
+    rows (:func:`_round_robin` interleaves several)."""
     rule = make_stop_rule(stop, tol)
     limit = overlap_tol * float(np.min(scene.radii))
     solver_params = json.dumps(parse_spec(spec)[1], sort_keys=True)
@@ -288,7 +321,7 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
 
     bar = tqdm(total=steps, initial=min(scene.step_index, steps),
                desc=f"{scene_spec} | {spec}", disable=not progress, file=sys.stderr,
-               leave=False)
+               leave=False, position=position)
     try:
         while scene.step_index < steps:
             if _TERM.is_set():
@@ -297,7 +330,7 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
             k = scene.step_index
             try:
                 rec = scene.step(spec, tol=tol, stop=stop, budget=budget,
-                                 warm_start=warm_start, qn_memory=qn_memory)
+                                 warm_start=warm_start, qn_memory=qn_memory, lows=lows)
             except ValueError as exc:  # diverged forces or a configuration the model rejects
                 row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, k, tol,
                                 rule.kind, solver_params, problem_params)
@@ -329,6 +362,7 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
             commit(row, res.history, finished=False)
             bar.set_postfix(n=rec.n, emvps=f"{res.emvps:.1f}", status=res.status.value)
             bar.update(1)
+            yield
     finally:
         bar.close()
     return _stored_rows(store, prefix)

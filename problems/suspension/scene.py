@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional, Sequence
 
 import numpy as np
 from scipy.spatial.distance import pdist
@@ -399,17 +399,22 @@ class LatticeScene:
         memory = self._prev_memory.remap(index)
         return memory if memory.rank else None
 
-    def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None) -> ContactProblem:
+    def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None,
+              lows: Optional[Sequence[str]] = None) -> ContactProblem:
         """The current step's contact problem (contacts, mobility, ``U_nc``, LCP).
 
-        ``symmetrize`` is passed to :func:`.contacts.build_contact_problem` (default:
+        ``lows`` names the scene's low fidelities to build (default: all of ``params.low``);
+        a single-fidelity solver needs none, and each one costs a mobility set-up and a
+        timed product per step.  ``symmetrize`` is passed to
+        :func:`.contacts.build_contact_problem` (default:
         the boundary-integral operators are symmetrised with the adjoint solve)."""
         P = self.params
         F, T = self.loads()
         problem = build_contact_problem(
             self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, separation=P.separation,
             model=P.model, p=P.p,
-            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low, symmetrize=symmetrize,
+            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low if lows is None else tuple(lows),
+            symmetrize=symmetrize,
             name=f"lattice-m{P.m}-step{self.step_index}",
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
         if warm_start and problem.contacts.n:
@@ -451,7 +456,8 @@ class LatticeScene:
 
     def step(self, solver: str = "bb-pgd", *, tol: float = 1e-8, stop: str = "paper",
              budget=None, warm_start: bool = True, qn_memory: bool = False,
-             params: Optional[dict] = None) -> StepRecord:
+             params: Optional[dict] = None, lows: Optional[Sequence[str]] = None
+             ) -> StepRecord:
         """Build, solve and advance one step.
 
         Parameters
@@ -472,6 +478,8 @@ class LatticeScene:
             "Quasi-Newton memory across time steps").
         params : dict, optional
             Extra solver parameters.
+        lows : list of str, optional
+            The low fidelities to build (:meth:`build`; default all of the scene's).
 
         Returns
         -------
@@ -480,7 +488,7 @@ class LatticeScene:
         from lcpbench.core.api import run_solver
 
         t0 = time.perf_counter()
-        problem = self.build(warm_start)
+        problem = self.build(warm_start, lows=lows)
         t1 = time.perf_counter()
         lcp = problem.lcp
         memory = self.carry_memory(problem) if qn_memory else None

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# The method paper's online comparison (its section "Online Comparison": BB-PGD, Mono-PQN and
+# Bi-PQN simulating lattices of 3x3x3, 4x4x4, ... spheres, one LCP per time step, high fidelity
+# BIM p = 8 at eps_gmres 1e-8, Bi-PQN's low fidelity BIM p = 4 at the same tolerance).
+#
+#   bash sweeps/online-paper.sh [OUT] [STEPS]          # default reports/online-paper, 100 steps
+#   LATTICES="3 4 5" bash sweeps/online-paper.sh       # add the 5x5x5 lattice
+#
+# Every (lattice, solver) simulation is resumable: rerunning the same command continues each
+# from its last finished step, and a larger STEPS extends them. The three solvers of a lattice
+# take their steps in turn (one step each, round robin), so that their wall times are measured
+# under the same machine load. `lcpbench report OUT` renders the online table and the E-MVP box
+# plots per lattice size; the measured table is in docs/benchmarks.md.
+set -euo pipefail
+OUT=${1:-reports/online-paper}
+STEPS=${2:-100}
+for m in ${LATTICES:-3 4}; do
+    lcpbench simulate --scene "lattice:m=${m},model=bim,p=8,eps_gmres=1e-8,low=[p4]" \
+        --solver bb-pgd --solver mono-pqn --solver "bi-pqn:low=p4" \
+        --steps "${STEPS}" --out "${OUT}"
+done
+lcpbench report "${OUT}"
