@@ -36,6 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lcpbench.toolkit.blas import one_blas_thread
+
 __all__ = ["weighted_prox", "ProxInfo", "FALLBACK_ITERS"]
 
 #: Steps of the projected-gradient fallback (each O(n r)): a cost cap of about 500 n r
@@ -112,6 +114,13 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
     z : ndarray
     info : ProxInfo
     """
+    with one_blas_thread():       # rank-sized systems: threads cost more than they give
+        return _weighted_prox(y, d, U, V, tol=tol, max_iter=max_iter,
+                              fallback_iters=fallback_iters)
+
+
+def _weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
+                   tol: float, max_iter: int, fallback_iters: int) -> tuple[np.ndarray, ProxInfo]:
     y = np.asarray(y, dtype=np.float64)
     n = y.shape[0]
     d = np.broadcast_to(np.asarray(d, dtype=np.float64), (n,)).copy()

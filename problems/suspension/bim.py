@@ -74,15 +74,17 @@ from __future__ import annotations
 
 import functools
 import warnings
+
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
 
+from lcpbench.toolkit.blas import one_blas_thread, threadpools
+
 from .bim_adjoint import AdjointPieces
-from .bim_gmres import _threadpools, relaxed_gmres
+from .bim_gmres import relaxed_gmres
 from .bim_pairs import RELAX_STEP, PairPlan
 from .bim_recycle import RecycledGCR, default_capacity, solve_together
 from .geometry import check_configuration, check_no_overlap, check_viscosity
-from .kernels_adjoint import apply_blocks_both, apply_blocks_both_serial
 from .kernels import (
     PARALLEL_WORK,
     apply_blocks,
@@ -96,6 +98,7 @@ from .kernels import (
     synthesize_forces_serial,
     traction_expansion,
 )
+from .kernels_adjoint import apply_blocks_both, apply_blocks_both_serial
 from .sphere_vsh import (
     default_quad_tol,
     expansion_coefficients,
@@ -130,7 +133,7 @@ def _one_blas_thread(method):
     at p = 8).  Entering the limit costs about 10 microseconds."""
     @functools.wraps(method)
     def wrapped(self, *args, **kwargs):
-        with _threadpools().limit(limits=1, user_api="blas"):
+        with one_blas_thread():
             return method(self, *args, **kwargs)
     return wrapped
 
@@ -287,9 +290,9 @@ class BimMobility(LinearOperator):
         cap = default_capacity(n) if recycle is None else max(int(recycle), 0)
         self.recycle = cap
         self._recycler = (RecycledGCR(lambda v: self._apply_bie(self._precondition(v)), n, cap,
-                                      _threadpools()) if cap else None)
+                                      threadpools()) if cap else None)
         self._adj_recycler = (RecycledGCR(lambda v: self.adjoint_pieces.operator(v), n, cap,
-                                          _threadpools()) if cap else None)
+                                          threadpools()) if cap else None)
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
         self.adjoint_iterations: list[int] = []

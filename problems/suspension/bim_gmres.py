@@ -9,20 +9,12 @@ decision uses a full-accuracy residual.  The forward and the transposed solves o
 
 from __future__ import annotations
 
-from functools import cache
-
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, gmres
-from threadpoolctl import ThreadpoolController
+
+from lcpbench.toolkit.blas import one_blas_thread
 
 __all__ = ["relaxed_gmres"]
-
-
-@cache
-def _threadpools() -> ThreadpoolController:
-    """threadpoolctl's view of the loaded thread pools, scanned once (a scan takes
-    milliseconds, as long as a small solve)."""
-    return ThreadpoolController()
 
 
 def relaxed_gmres(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int,
@@ -103,7 +95,7 @@ def relaxed_gmres(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: i
         return float(np.linalg.norm(b - product(z))) / nb
 
     op = LinearOperator((n, n), matvec=product, dtype=np.float64)
-    with _threadpools().limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         res = residual(x)
         while res > rtol and state["its"] < maxiter:
             state["cycle"] = 0
