@@ -205,6 +205,7 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
         c0 = A.count
         out = A @ v
         info["krylov_mvps"] += A.count - c0
+        ctx.offer_direction(v, out)     # the Krylov products: evidence if there is no solution
         return out
 
     while True:

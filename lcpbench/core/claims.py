@@ -180,7 +180,16 @@ def _nonnegative_combination(N: np.ndarray, b: np.ndarray, rows: np.ndarray) -> 
                       bounds=[(-1e6, 1e6)] * k + [(None, 1.0)], method="highs")
     except ValueError:
         return None
-    return sol.x[:k] if sol.status == 0 else None
+    if sol.status != 0:
+        return None
+    y = sol.x[:k]
+    # The LP meets its constraints to about 1e-7: entries it leaves at ~0 could be slightly
+    # negative, and clipping them would spoil A d ~ 0. Project y so that they are 0 to rounding.
+    d = N @ y
+    zero = rows & (d <= 1e-6 * float(np.max(np.abs(d))))
+    C = np.vstack([N[zero], (b @ N)[None, :]])
+    rhs = np.append(np.zeros(int(zero.sum())), -1.0)
+    return y - np.linalg.lstsq(C, C @ y - rhs, rcond=None)[0]
 
 
 def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[float]:

@@ -41,7 +41,7 @@ __all__ = ["Budget", "Monitor", "SolverContext", "StopSolver", "accuracy_floor"]
 #: span directions whose products are known without a further product.
 RECENT_ITERATES = 50
 #: Directions with known products a solver may offer (:meth:`SolverContext.offer_direction`).
-OFFERED_DIRECTIONS = 10
+OFFERED_DIRECTIONS = 50
 
 #: The accuracy floor of an operator with declared ``rtol``: ``ACCURACY_FACTOR rtol ||b||``.
 ACCURACY_FACTOR = 10.0
