@@ -14,12 +14,16 @@ solver family, and both use counted products of the high-fidelity operator:
   one fresh counted product confirms it; a claim the fresh product refutes
   becomes ``stagnated``, never ``converged``.
 * :func:`infeasibility_evidence`: for a solve that ended without converging,
-  a direction ``d >= 0`` (the iterate, or the last step) with ``A d ~ 0`` and
-  ``b'd < 0`` proves by Farkas' lemma that every feasible point is far away:
-  ``d'(A z + b) >= 0`` for feasible ``z`` gives ``||z|| >= -b'd / ||(A d)_+||``.
-  When the solver's own ``w`` suggests such a direction, one counted product
-  ``A d`` (allowed past the budget: the solve is over) confirms it, and the
-  status becomes ``infeasible`` with the bound in the message.
+  a direction ``d >= 0`` with ``A d ~ 0`` and ``b'd < 0`` proves by Farkas'
+  lemma that every feasible point is far away: ``d'(A z + b) >= 0`` for
+  feasible ``z`` gives ``||z|| >= -b'd / ||(A d)_+||``. Candidates are the
+  iterate, the last step, and the best non-negative combination of the
+  directions whose products are already known (the differences of the recent
+  iterates and the directions a solver offered with
+  :meth:`~lcpbench.core.context.SolverContext.offer_direction`). When the
+  known products suggest such a direction, one counted product ``A d``
+  (allowed past the budget: the solve is over) confirms it, and the status
+  becomes ``infeasible`` with the bound in the message.
 """
 
 from __future__ import annotations
@@ -196,9 +200,12 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     """Set ``res`` to ``infeasible`` when a null direction with ``b'd < 0`` is confirmed.
 
     Returns the proven lower bound on the norm of any feasible point, or None
-    when there is no such evidence. ``||A||`` is the context's secant estimate
-    (a lower bound, so the test errs towards not declaring). At most one counted
-    product, recorded in ``info['infeasibility_mvps']``.
+    when there is no such evidence. ``||A||`` is the largest ratio
+    ``||A v|| / ||v||`` among the known products (the context's secant estimate
+    and the offered directions: a lower bound, so the test errs towards not
+    declaring). The candidates are tried in the order of :func:`_candidates`;
+    the first whose known products pass the test is confirmed. At most one
+    counted product, recorded in ``info['infeasibility_mvps']``.
     """
     if res.status in (Status.converged, Status.failed, Status.infeasible) or ctx.n == 0:
         return None

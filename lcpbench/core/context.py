@@ -42,6 +42,9 @@ __all__ = ["Budget", "Monitor", "SolverContext", "StopSolver", "accuracy_floor"]
 RECENT_ITERATES = 50
 #: Directions with known products a solver may offer (:meth:`SolverContext.offer_direction`).
 OFFERED_DIRECTIONS = 50
+#: Each of the two windows keeps at most this many floats (``entries * n``, 32 MB of
+#: vectors and as much of products), so a large ``n`` keeps fewer entries (at least 3).
+WINDOW_FLOATS = 2_000_000
 
 #: The accuracy floor of an operator with declared ``rtol``: ``ACCURACY_FACTOR rtol ||b||``.
 ACCURACY_FACTOR = 10.0
@@ -159,8 +162,9 @@ class SolverContext:
         self._prev_kkt: Optional[float] = None
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
         self._prev: Optional[tuple[np.ndarray, np.ndarray]] = None
-        self._recent: deque = deque(maxlen=RECENT_ITERATES)
-        self._offered: deque = deque(maxlen=OFFERED_DIRECTIONS)
+        room = WINDOW_FLOATS // max(self.n, 1)
+        self._recent: deque = deque(maxlen=max(3, min(RECENT_ITERATES, room)))
+        self._offered: deque = deque(maxlen=max(3, min(OFFERED_DIRECTIONS, room)))
         self._certified: Optional[tuple[np.ndarray, float]] = None
         #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
         #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
@@ -321,7 +325,11 @@ class SolverContext:
 
     @property
     def recent(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """The last :data:`RECENT_ITERATES` finite reported ``(x, w)``, oldest first."""
+        """The last finite reported ``(x, w)``, oldest first.
+
+        At most :data:`RECENT_ITERATES` of them, fewer when ``n`` is large
+        (:data:`WINDOW_FLOATS`).
+        """
         return list(self._recent)
 
     def offer_direction(self, d: np.ndarray, Ad: np.ndarray) -> None:
@@ -334,7 +342,8 @@ class SolverContext:
         of the reported iterates' differences with ``A d ~ 0`` and ``b'd < 0``
         (:func:`lcpbench.core.claims.infeasibility_evidence`), and confirms it
         with one counted product. Offering costs no product and changes nothing
-        else; the last :data:`OFFERED_DIRECTIONS` finite offers are kept.
+        else; the last :data:`OFFERED_DIRECTIONS` finite offers are kept (fewer
+        when ``n`` is large, :data:`WINDOW_FLOATS`).
         """
         d = np.array(d, dtype=np.float64).reshape(-1)
         Ad = np.array(Ad, dtype=np.float64).reshape(-1)
