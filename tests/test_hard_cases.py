@@ -6,7 +6,8 @@ SR1, PGS) may fail on a hard case, but then its status must say so: a
 solver. The safeguarded and reference solvers must solve every instance (on spd-cond up
 to the measured condition-number limits of COND_LIMIT).
 
-The inexact family (every product a CG solve at a declared relative accuracy) is checked
+The inexact family (every product a CG solve at a declared relative accuracy, 1e-6 and the
+looser 1e-4, where CG's actual error exceeds the declaration by up to 2.4x) is checked
 against what such an operator allows: its stop threshold is the accuracy floor the
 framework announces, a "converged" must hold for a fresh product of the operator at that
 accuracy (computed here, outside the framework) and within 10 x the threshold for the
@@ -22,10 +23,10 @@ from lcpbench.core.context import accuracy_floor
 from lcpbench.problems.inexact import exact_product
 from lcpbench.problems.random import with_perturbed_lows
 from lcpbench.core.registry import get_problem, solvers
-from lcpbench.core.specs import make_params
+from lcpbench.core.specs import make_params, parse_spec
 
 HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
-        "bb-cycle", "inexact"]
+        "bb-cycle", "inexact", "inexact:rtol=1e-4"]
 #: Solvers with a globalisation (line search, optimal step on a descent direction, pivoting)
 #: or exact QP solves: they must solve every hard case.
 SAFEGUARDED = ["bb-pgd:safeguard=true", "l-bfgs-b", "minmap-newton", "mono-pqn", "bi-pqn",
@@ -41,8 +42,9 @@ COND_LIMIT = {"bb-pgd:safeguard=true": 1e6, "minmap-newton": 1e4, "l-bfgs-b": 1e
 
 
 def _instances(family):
-    info = get_problem(family)
-    return info.func(make_params(family, info.params, {}))
+    name, raw = parse_spec(family)
+    info = get_problem(name)
+    return info.func(make_params(name, info.params, raw))
 
 
 def _all_solvers():
@@ -74,7 +76,7 @@ def _exact_residual(lcp, x) -> float:
 def test_no_false_convergence_and_safeguarded_solve(family, true_residual):
     lcps = _instances(family)
     inexact = lcps[0].A.rtol is not None
-    assert inexact == (family == "inexact")
+    assert inexact == family.startswith("inexact")
     failures = []
     for solver in sorted(set(_all_solvers()) | set(SAFEGUARDED)):
         name = solver.split(":")[0]
