@@ -18,8 +18,8 @@ solver family, and both use counted products of the high-fidelity operator:
   lemma that every feasible point is far away: ``d'(A z + b) >= 0`` for
   feasible ``z`` gives ``||z|| >= -b'd / ||(A d)_+||``. Candidates are the
   iterate, the last step, and the best non-negative combination of the
-  directions whose products are already known (the differences of the recent
-  iterates and the directions a solver offered with
+  directions whose products are already known (the recent iterates and their
+  differences, and the directions a solver offered with
   :meth:`~lcpbench.core.context.SolverContext.offer_direction`). When the
   known products suggest such a direction, one counted product ``A d``
   (allowed past the budget: the solve is over) confirms it, and the status
@@ -115,10 +115,12 @@ def _candidates(ctx: SolverContext, x: np.ndarray, w: np.ndarray, D: np.ndarray,
 def _known_directions(ctx: SolverContext) -> tuple[np.ndarray, np.ndarray]:
     """Unit columns ``D`` and their products ``Y = A D`` known without a product.
 
-    The differences of consecutive recent iterates (``A (x_k - x_j) = w_k - w_j``)
-    and the directions the solver offered with their products.
+    The differences of consecutive recent iterates (``A (x_k - x_j) = w_k - w_j``),
+    the last iterate itself (``A x = w - b``) and the directions the solver
+    offered with their products.
     """
     pairs = [(x1 - x0, w1 - w0) for (x0, w0), (x1, w1) in zip(ctx.recent, ctx.recent[1:])]
+    pairs += [(x, w - ctx.b) for x, w in ctx.recent[-1:]]
     pairs += ctx.offered
     D, Y = [], []
     for d, Ad in pairs:
