@@ -75,7 +75,10 @@ class InexactInverse(LinearOperator):
 
 
 def inexact_inverse(K: sp.spmatrix, rtol: float) -> InexactInverse:
-    """``v -> K^{-1} v`` by conjugate gradients to relative tolerance ``rtol`` (:class:`InexactInverse`)."""
+    """``v -> K^{-1} v`` by conjugate gradients at relative tolerance ``rtol``.
+
+    An :class:`InexactInverse`, which also gives the exact product.
+    """
     return InexactInverse(K, rtol)
 
 

@@ -172,7 +172,8 @@ def _span_candidate(ctx: SolverContext, D: np.ndarray, Y: np.ndarray,
     return d / nd, Ad / nd
 
 
-def _nonnegative_combination(N: np.ndarray, b: np.ndarray, rows: np.ndarray) -> Optional[np.ndarray]:
+def _nonnegative_combination(N: np.ndarray, b: np.ndarray,
+                             rows: np.ndarray) -> Optional[np.ndarray]:
     """``y`` maximising ``t <= 1`` with ``(N y)_i >= t`` on ``rows`` and ``b'N y = -1``, or None."""
     from scipy.optimize import linprog
 
