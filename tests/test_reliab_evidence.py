@@ -169,3 +169,27 @@ def test_reference_of_an_inexact_operator_is_symmetrised_and_says_how_much():
     x = ref.x
     exact = float(np.linalg.norm(np.minimum(x, exact_product(lcp, x) + lcp.b)))
     assert exact <= accuracy_floor(lcp)
+
+
+@register_solver("test-near-walker", NoParams, listed=False)
+def near_walker(ctx, p):
+    """Walks towards the large solution ``(0, 1 / eps)`` of ``A = diag(1, eps)`` and stops short."""
+    eps = 1e-12
+    x = np.array([1.0, 0.0])                  # one product along e_1: ||A|| >= 1 is known
+    ctx.report(x, ctx.A @ x + ctx.b)
+    for t in (0.5, 0.9, 0.999):
+        x = np.array([0.0, t / eps])
+        w = ctx.A @ x + ctx.b
+        ctx.report(x, w)
+    return ctx.finish(x, w, Status.max_iter, "stopped short")
+
+
+def test_no_infeasible_when_the_iterate_is_as_far_out_as_the_bound():
+    # A solvable problem (x = (0, 1e12)) whose A has an eigenvalue 1e-12 ||A||: e_2 passes the
+    # null test, but the nearly feasible iterate is already as far out as the bound 1e12
+    # proves (before: 'infeasible' on this solvable problem)
+    A = np.diag([1.0, 1e-12])
+    res = lcpbench.solve(A, np.array([1.0, -1.0]), solver="test-near-walker")
+    assert res.status == Status.max_iter, res.summary()
+    assert res.info["infeasibility_bound_within_reach"] == pytest.approx(1e12, rel=1e-6)
+    assert res.info["infeasibility_mvps"] == 1

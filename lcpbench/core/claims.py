@@ -42,6 +42,9 @@ __all__ = ["confirm_convergence", "infeasibility_evidence", "NULL_RTOL"]
 #: A direction counts as a null direction when ``||(A d)_+|| <= NULL_RTOL ||A||``:
 #: every feasible point then has a norm of at least ``|b'd| / (NULL_RTOL ||A||)``.
 NULL_RTOL = 1e-10
+#: When the returned iterate is nearly feasible, ``infeasible`` needs the proven bound on
+#: feasible points beyond this many times its norm (see :func:`infeasibility_evidence`).
+BOUND_MARGIN = 10.0
 #: Known directions below this fraction of the largest singular value of their
 #: (unit-column) matrix are dropped from the span searched by :func:`_span_candidate`.
 SPAN_RCOND = 1e-12
@@ -207,8 +210,14 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     ``||A v|| / ||v||`` among the known products (the context's secant estimate
     and the offered directions: a lower bound, so the test errs towards not
     declaring). The candidates are tried in the order of :func:`_candidates`;
-    the first whose known products pass the test is confirmed. At most one
-    counted product, recorded in ``info['infeasibility_mvps']``.
+    the first whose known products pass the test is confirmed. When the
+    returned iterate is nearly feasible (``||(A x + b)_-|| < |b'd| / 2``) the
+    proven bound must also exceed :data:`BOUND_MARGIN` times its norm: by
+    ``-||w_-|| <= d'w = x'A d + b'd <= ||x|| ||(A d)_+|| + b'd`` such an
+    iterate is itself about as far out as the bound, so the evidence could
+    come from a solvable problem whose solution is large (badly scaled ``A``);
+    the bound is then kept in ``info['infeasibility_bound_within_reach']``. At
+    most one counted product, recorded in ``info['infeasibility_mvps']``.
     """
     if res.status in (Status.converged, Status.failed, Status.infeasible) or ctx.n == 0:
         return None
@@ -246,6 +255,14 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     if pos > tol:
         return None
     bound = float("inf") if pos == 0.0 else -bd / pos
+    # For any x >= 0, -||(A x + b)_-|| <= d'(A x + b) <= ||x|| ||(A d)_+|| + b'd: an iterate
+    # with a small negative part of w reaches the bound's region itself. There the "far
+    # away" feasible points may be where the solver already is (badly scaled A, a large
+    # solution), so the evidence must reach beyond it.
+    near = float(np.linalg.norm(np.minimum(w, 0.0))) < 0.5 * -bd
+    if near and not bound > BOUND_MARGIN * float(np.linalg.norm(x)):
+        ctx.info["infeasibility_bound_within_reach"] = bound
+        return None
     res.status = Status.infeasible
     res.message = (f"no solution: d >= 0 with b'd = {bd:.3g} and ||(A d)_+|| = {pos:.3g} "
                    f"(<= {NULL_RTOL:g} ||A||, ||A|| >= {norm_A:.3g}), so every feasible "
