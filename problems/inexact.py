@@ -18,13 +18,13 @@ from typing import Annotated
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import LinearOperator, cg
+from scipy.sparse.linalg import LinearOperator, cg, spsolve
 
 from lcpbench import LCP, Operator, register_problem
 from lcpbench.core.specs import Bounds
 from lcpbench.problems.synthetic import Count, SeededParams, Size, seeded
 
-__all__ = ["inexact_inverse", "inexact_lcp", "stiffness"]
+__all__ = ["InexactInverse", "exact_product", "inexact_inverse", "inexact_lcp", "stiffness"]
 
 
 def stiffness(rng: np.random.Generator, n: int, shift: float) -> sp.csr_matrix:
@@ -34,25 +34,65 @@ def stiffness(rng: np.random.Generator, n: int, shift: float) -> sp.csr_matrix:
     return sp.diags([-c[1:-1], main, -c[1:-1]], [-1, 0, 1], format="csr")
 
 
-def inexact_inverse(K: sp.spmatrix, rtol: float) -> LinearOperator:
+class InexactInverse(LinearOperator):
     """``v -> K^{-1} v`` by conjugate gradients to relative tolerance ``rtol``.
 
     The solve starts from zero every time, so the same ``v`` always gives the
     same (inexact) answer; nearby vectors do not. A solve that does not reach
     its tolerance in ``10 n`` iterations raises, naming the residual.
-    """
-    n = K.shape[0]
+    :meth:`exact` is the same product by a sparse direct solve, for checking
+    answers against the operator it approximates.
 
-    def matvec(v: np.ndarray) -> np.ndarray:
+    Parameters
+    ----------
+    K : sparse matrix
+        The SPD matrix whose inverse is applied.
+    rtol : float
+        Relative residual tolerance of every CG solve.
+    """
+
+    def __init__(self, K: sp.spmatrix, rtol: float):
+        super().__init__(dtype=np.dtype(np.float64), shape=K.shape)
+        self.K = sp.csr_matrix(K)
+        self.rtol = float(rtol)
+
+    def _matvec(self, v: np.ndarray) -> np.ndarray:
         v = np.asarray(v, dtype=np.float64).reshape(-1)
-        y, code = cg(K, v, rtol=rtol, atol=0.0, maxiter=10 * n)
+        n = self.shape[0]
+        y, code = cg(self.K, v, rtol=self.rtol, atol=0.0, maxiter=10 * n)
         if code != 0:
-            res = np.linalg.norm(K @ y - v) / max(np.linalg.norm(v), 1e-300)
-            raise RuntimeError(f"inner CG did not reach rtol {rtol:g} (relative residual "
+            res = np.linalg.norm(self.K @ y - v) / max(np.linalg.norm(v), 1e-300)
+            raise RuntimeError(f"inner CG did not reach rtol {self.rtol:g} (relative residual "
                                f"{res:.3g} after {10 * n} iterations)")
         return y
 
-    return LinearOperator((n, n), matvec=matvec, dtype=np.float64)
+    def _adjoint(self) -> "InexactInverse":
+        return self
+
+    def exact(self, v: np.ndarray) -> np.ndarray:
+        """``K^{-1} v`` by a sparse direct solve (to rounding, not at ``rtol``)."""
+        return spsolve(self.K.tocsc(), np.asarray(v, dtype=np.float64).reshape(-1))
+
+
+def inexact_inverse(K: sp.spmatrix, rtol: float) -> InexactInverse:
+    """``v -> K^{-1} v`` by conjugate gradients at relative tolerance ``rtol``.
+
+    An :class:`InexactInverse`, which also gives the exact product.
+    """
+    return InexactInverse(K, rtol)
+
+
+def exact_product(lcp: LCP, x: np.ndarray) -> np.ndarray:
+    """``A x`` to rounding for an instance of this family (a direct solve, not counted).
+
+    For tests and benchmarks that check answers against the operator the
+    inexact products approximate. Raises ``TypeError`` for other instances.
+    """
+    impl = getattr(lcp.A, "_impl", None)
+    if not isinstance(impl, InexactInverse):
+        raise TypeError(f"{lcp.name!r} is not an inexact-operator instance (its high operator "
+                        "is not an InexactInverse); exact_product needs one from this module")
+    return impl.exact(x)
 
 
 def inexact_lcp(rng: np.random.Generator, n: int, rtol: float, *, shift: float = 1e-2,

@@ -122,6 +122,15 @@ PERTURBED_LOWS = (("low", 1e-3, 0.1), ("lower", 1e-2, 0.01))
 def with_perturbed_lows(lcp: LCP, seed: int, levels=PERTURBED_LOWS) -> LCP:
     """``lcp`` with low-fidelity operators ``A + E`` of the given relative errors and costs.
 
+    An explicit high-fidelity matrix is used as it is. A matrix-free one (for
+    instance an inexact operator whose products are iterative solves) stays the
+    high-fidelity operator unchanged, with its declared accuracy; only the lows
+    are built from its dense form (``n`` uncounted products, so for small
+    ``n``). That dense form is symmetric only to the accuracy of the products,
+    so it is symmetrised first and its asymmetry ``max|A - A'| / max|A|`` is
+    recorded in ``meta['low_base_asymmetry']``: far below the relative errors
+    of the lows, it changes nothing they model.
+
     Parameters
     ----------
     lcp : LCP
@@ -137,11 +146,19 @@ def with_perturbed_lows(lcp: LCP, seed: int, levels=PERTURBED_LOWS) -> LCP:
         Same ``b``, name and meta, with the low operators attached.
     """
     A = lcp.dense()
+    meta = dict(lcp.meta)
+    if lcp.A.explicit:
+        high = Operator(A, cost=1.0)
+    else:
+        high = Operator(lcp.A, cost=1.0)              # keeps the operator and its accuracy
+        scale = float(np.max(np.abs(A))) if A.size else 0.0
+        meta["low_base_asymmetry"] = (float(np.max(np.abs(A - A.T))) / scale
+                                      if scale > 0 else 0.0)
+        A = (A + A.T) / 2
     rng = np.random.default_rng(seed)
     low = {name: Operator(A + symmetric_perturbation(rng, A, rel), cost=cost, name=name)
            for name, rel, cost in levels}
-    return LCP(Operator(A, cost=1.0), lcp.b, low=low, name=lcp.name, meta=lcp.meta,
-               psd_check=False)
+    return LCP(high, lcp.b, low=low, name=lcp.name, meta=meta, psd_check=False)
 
 
 @register_problem("bifidelity", BifidelityParams)

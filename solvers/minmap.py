@@ -205,6 +205,7 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
         c0 = A.count
         out = A @ v
         info["krylov_mvps"] += A.count - c0
+        ctx.offer_direction(v, out)     # the Krylov products: evidence if there is no solution
         return out
 
     while True:
@@ -214,6 +215,10 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
         F = ~S
         dx, Adx = _newton_direction(ctx, p, x, w, H, S, F, counted)
         info["newton_iterations"] += 1
+        if dx is not None:
+            # On a problem without a solution J is singular and the Krylov solve grows the
+            # step along a null direction of A: evidence the framework can confirm.
+            ctx.offer_direction(dx, Adx)
         step: Optional[tuple[np.ndarray, np.ndarray]] = None
         if dx is not None:
             JdX = np.where(S, Adx, dx)
@@ -231,7 +236,10 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
         if step is None:
             # Steepest descent of the merit: grad f = J'H = H on F + A (H on S).
             info["fallbacks"] += 1
-            g = np.where(F, H, 0.0) + A @ _pad(H[S], S, n)
+            AHS = A @ _pad(H[S], S, n)
+            g = np.where(F, H, 0.0) + AHS
+            # -H_S (> 0 where x = 0) with its product: a null direction when J'H = 0 at H != 0
+            ctx.offer_direction(-_pad(H[S], S, n), -AHS)
             gg = float(g @ g)
             if not gg > 0:
                 return ctx.finish(x, w, Status.stagnated,

@@ -324,6 +324,11 @@ def a_pgd(ctx: SolverContext, p: APGDParams) -> SolveResult:
             L = p.power_safety * power_iteration(lambda v: ctx.A @ v, n, p.power_iters, p.seed)
             ctx.info["power_mvps"] = ctx.A.count - before
             mu = 0.0
+    if L == 0.0:
+        # A vanished on the estimate's vectors (A = 0, up to probability zero): the
+        # objective is linear and every step length is safe; take L = 1.
+        L = 1.0
+        ctx.info["zero_curvature"] = True
     if not (np.isfinite(L) and L > 0.0):
         return ctx.finish(x, w, Status.failed,
                           f"Lipschitz constant estimate {L!r} is not positive: A is zero or "

@@ -20,6 +20,7 @@ fresh counted product and looks for evidence of infeasibility
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
@@ -34,6 +35,16 @@ from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
 __all__ = ["Budget", "Monitor", "SolverContext", "StopSolver", "accuracy_floor"]
 
+
+#: Reported iterates ``(x, w)`` the context keeps for the evidence of infeasibility
+#: (:mod:`lcpbench.core.claims`): their differences and the differences of their ``w``
+#: span directions whose products are known without a further product.
+RECENT_ITERATES = 50
+#: Directions with known products a solver may offer (:meth:`SolverContext.offer_direction`).
+OFFERED_DIRECTIONS = 50
+#: Each of the two windows keeps at most this many floats (``entries * n``, 32 MB of
+#: vectors and as much of products), so a large ``n`` keeps fewer entries (at least 3).
+WINDOW_FLOATS = 2_000_000
 
 #: The accuracy floor of an operator with declared ``rtol``: ``ACCURACY_FACTOR rtol ||b||``.
 ACCURACY_FACTOR = 10.0
@@ -151,6 +162,9 @@ class SolverContext:
         self._prev_kkt: Optional[float] = None
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
         self._prev: Optional[tuple[np.ndarray, np.ndarray]] = None
+        room = WINDOW_FLOATS // max(self.n, 1)
+        self._recent: deque = deque(maxlen=max(3, min(RECENT_ITERATES, room)))
+        self._offered: deque = deque(maxlen=max(3, min(OFFERED_DIRECTIONS, room)))
         self._certified: Optional[tuple[np.ndarray, float]] = None
         #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
         #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
@@ -247,6 +261,7 @@ class SolverContext:
                 if dx > 0.0:
                     self.norm_A = max(self.norm_A, float(np.linalg.norm(w - self._last[1])) / dx)
             self._prev, self._last = self._last, (x.copy(), w.copy())
+            self._recent.append(self._last)
         stop = False
         if not finite:
             self.status, self.message = Status.diverged, "non-finite iterate or residual"
@@ -307,6 +322,39 @@ class SolverContext:
                 or not np.array_equal(self._certified[0], x):
             return None
         return self._certified[1]
+
+    @property
+    def recent(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The last finite reported ``(x, w)``, oldest first.
+
+        At most :data:`RECENT_ITERATES` of them, fewer when ``n`` is large
+        (:data:`WINDOW_FLOATS`).
+        """
+        return list(self._recent)
+
+    def offer_direction(self, d: np.ndarray, Ad: np.ndarray) -> None:
+        """Offer a direction ``d`` whose product ``A d`` the solver computed, as possible evidence.
+
+        For directions along which the solver suspects the problem has no
+        solution (a Newton step that blows up on a singular system, a search
+        direction of zero curvature): after a solve that did not converge the
+        framework looks for a non-negative combination of these directions and
+        of the reported iterates' differences with ``A d ~ 0`` and ``b'd < 0``
+        (:func:`lcpbench.core.claims.infeasibility_evidence`), and confirms it
+        with one counted product. Offering costs no product and changes nothing
+        else; the last :data:`OFFERED_DIRECTIONS` finite offers are kept (fewer
+        when ``n`` is large, :data:`WINDOW_FLOATS`).
+        """
+        d = np.array(d, dtype=np.float64).reshape(-1)
+        Ad = np.array(Ad, dtype=np.float64).reshape(-1)
+        if d.shape == Ad.shape == (self.n,) and np.all(np.isfinite(d)) and \
+                np.all(np.isfinite(Ad)) and np.any(d != 0.0):
+            self._offered.append((d, Ad))
+
+    @property
+    def offered(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The directions offered by :meth:`offer_direction`, oldest first."""
+        return list(self._offered)
 
     @property
     def previous(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
