@@ -20,6 +20,7 @@ from .core.registry import problems as list_problems
 from .core.registry import solvers as list_solvers
 from .core.residuals import StopRule
 from .core.result import SolveResult, Status
+from .toolkit.quasinewton import SecantMemory
 
 __version__ = "0.1.0"
 
@@ -27,5 +28,5 @@ __all__ = [
     "LCP", "Operator", "Budget", "Monitor", "SolverContext", "StopSolver", "BudgetExhausted",
     "StopRule", "SolveResult", "Status", "solve", "run_solver", "DEFAULT_SOLVER", "reference",
     "Reference", "register_solver", "register_problem", "get_solver", "get_problem",
-    "list_problems", "list_solvers", "parse_spec", "__version__",
+    "list_problems", "list_solvers", "parse_spec", "SecantMemory", "__version__",
 ]

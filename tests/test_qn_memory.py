@@ -13,7 +13,7 @@ import lcpbench
 from lcpbench.cli import main
 from lcpbench.problems.suspension.contacts import Contacts
 from lcpbench.problems.suspension.scene import LatticeScene
-from lcpbench.toolkit.quasinewton import SecantMemory
+from lcpbench import SecantMemory
 
 
 def _spd(n: int, cond: float, seed: int) -> np.ndarray:

@@ -13,6 +13,9 @@ The rules the framework relies on:
 * touch ``A`` only through ``ctx.A`` (every product is counted there; ``A @ 0`` is free);
 * report every iterate with ``ctx.report(x, w)``; it returns True when the stop rule is
   met or the budget is spent, and then the solver returns ``ctx.finish(x, w)``;
+* optionally offer directions whose products were computed anyway,
+  ``ctx.offer_direction(d, Ad)`` (no product): when the solve does not converge the
+  framework looks among them for evidence that the LCP has no solution;
 * keep the parameters in a frozen dataclass whose fields all have defaults: the
   registry parses ``template-pgd:max_iter=50`` into it and rejects unknown keys.
 """
