@@ -15,11 +15,11 @@ from functools import cache
 
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["one_blas_thread", "threadpools"]
+__all__ = ["one_blas_thread"]
 
 
 @cache
-def threadpools() -> ThreadpoolController:
+def _threadpools() -> ThreadpoolController:
     """threadpoolctl's view of the loaded thread pools, scanned once (a scan takes
     milliseconds; entering a limit afterwards about 10 microseconds)."""
     return ThreadpoolController()
@@ -27,4 +27,4 @@ def threadpools() -> ThreadpoolController:
 
 def one_blas_thread() -> AbstractContextManager:
     """A context in which BLAS runs on one thread (the previous limits come back on exit)."""
-    return threadpools().limit(limits=1, user_api="blas")
+    return _threadpools().limit(limits=1, user_api="blas")

@@ -78,7 +78,7 @@ import warnings
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
 
-from lcpbench.toolkit.blas import one_blas_thread, threadpools
+from lcpbench.toolkit.blas import one_blas_thread
 
 from .bim_adjoint import AdjointPieces
 from .bim_gmres import relaxed_gmres
@@ -289,10 +289,10 @@ class BimMobility(LinearOperator):
         n = M * 3 * N
         cap = default_capacity(n) if recycle is None else max(int(recycle), 0)
         self.recycle = cap
-        self._recycler = (RecycledGCR(lambda v: self._apply_bie(self._precondition(v)), n, cap,
-                                      threadpools()) if cap else None)
-        self._adj_recycler = (RecycledGCR(lambda v: self.adjoint_pieces.operator(v), n, cap,
-                                          threadpools()) if cap else None)
+        self._recycler = (RecycledGCR(lambda v: self._apply_bie(self._precondition(v)), n, cap)
+                          if cap else None)
+        self._adj_recycler = (RecycledGCR(lambda v: self.adjoint_pieces.operator(v), n, cap)
+                              if cap else None)
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
         self.adjoint_iterations: list[int] = []

@@ -28,11 +28,11 @@ when the bound allowed skipping the check, the recurrence within that bound.
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from typing import Callable
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
+
+from lcpbench.toolkit.blas import one_blas_thread
 
 __all__ = ["RecycledGCR", "default_capacity", "solve_together"]
 
@@ -71,9 +71,6 @@ class RecycledGCR:
         Most directions kept; when full, a new direction replaces the oldest (truncated
         GCR, which keeps the residual recurrence exact).  0 keeps nothing between solves:
         every solve is then full GCR (GMRES) from zero.
-    threads : ThreadpoolController, optional
-        Used to hold BLAS to one thread during the orthogonalisation (the products run
-        compiled parallel kernels; threaded BLAS beside them is slower on few cores).
 
     Attributes
     ----------
@@ -83,12 +80,11 @@ class RecycledGCR:
         Products of ``G`` made so far (iterations and residual checks).
     """
 
-    def __init__(self, apply: Callable[[np.ndarray], np.ndarray], n: int, capacity: int,
-                 threads: ThreadpoolController | None = None) -> None:
+    def __init__(self, apply: Callable[[np.ndarray], np.ndarray], n: int,
+                 capacity: int) -> None:
         self.apply = apply
         self.n = int(n)
         self.capacity = max(0, int(capacity))
-        self._threads = threads
         self._U = np.empty((0, self.n))          # ring buffers, rows [0, _filled) valid
         self._C = np.empty((0, self.n))
         self._filled = 0
@@ -245,9 +241,7 @@ def solve_together(jobs: list, apply_many: Callable[[list], list], rtol: float,
     gens = [solver.iterate(b, rtol, maxiter) for solver, b in jobs]
     out: list = [None] * len(gens)
     need: list = [None] * len(gens)
-    threads = next((s._threads for s, _ in jobs if s._threads is not None), None)
-    ctx = threads.limit(limits=1, user_api="blas") if threads is not None else nullcontext()
-    with ctx:
+    with one_blas_thread():           # the orthogonalisation: vector work beside the kernels
         for k, g in enumerate(gens):
             try:
                 need[k] = next(g)
