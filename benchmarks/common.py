@@ -58,3 +58,14 @@ def print_markdown_table(names, sets, cell, label=lambda s: s) -> None:
     print("|---|" + "---|" * len(sets))
     for s in names:
         print(f"| {label(s)} | " + " | ".join(cell(s, lab) for lab in sets) + " |")
+
+
+def packed_lattice(m: int, steps: int = 40):
+    """The lattice scene of side ``m`` after ``steps`` cheap RPY steps: packed, with the
+    closest gaps at the 0.1a separation, as the shipped sets' instances are."""
+    from lcpbench.problems.suspension.scene import LatticeScene
+
+    scene = LatticeScene(m, model="rpy")
+    for _ in range(steps):
+        scene.step("bb-pgd")
+    return scene

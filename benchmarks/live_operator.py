@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common import packed_lattice
+
 
 def worker(state: str, m: int, p: int, solver: str) -> None:
     """One step's build and solve in this process's lcpbench; prints a JSON line."""
@@ -54,14 +56,8 @@ def worker(state: str, m: int, p: int, solver: str) -> None:
 
 
 def packed_state(m: int, steps: int, path: Path) -> None:
-    """Save the lattice scene's state after ``steps`` RPY steps (packed: the closest gaps
-    at the 0.1a separation)."""
-    from lcpbench.problems.suspension.scene import LatticeScene
-
-    scene = LatticeScene(m, model="rpy")
-    for _ in range(steps):
-        scene.step("bb-pgd")
-    np.savez(path, **scene.get_state())
+    """Save the state of :func:`common.packed_lattice` for the worker processes."""
+    np.savez(path, **packed_lattice(m, steps).get_state())
 
 
 def run(python: str, state: Path, m: int, p: int, solver: str) -> dict:

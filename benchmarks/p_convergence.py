@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from common import packed_lattice
+
 from lcpbench.problems.suspension.contacts import build_contact_problem
 from lcpbench.problems.suspension.scene import LatticeScene
 
@@ -42,9 +44,7 @@ def main() -> None:
     ap.add_argument("--pack", type=int, default=40, help="RPY steps before the measurement")
     ap.add_argument("--eps", type=float, default=1e-10)
     args = ap.parse_args()
-    scene = LatticeScene(args.m, model="rpy")
-    for _ in range(args.pack):
-        scene.step("bb-pgd")
+    scene = packed_lattice(args.m, args.pack)
     mats = {}
     for p in sorted(args.p):
         t0 = time.perf_counter()
