@@ -427,9 +427,7 @@ class BimMobility(LinearOperator):
         restart = max(1, min(b.size, 60, self.maxiter))
         x, its, res = relaxed_gmres(operator, b, start, self.eps_gmres, restart, self.maxiter,
                                     rungs=rungs, step=RELAX_STEP)
-        iterations.append(its)
-        residuals.append(res)
-        self._report(what, res, its)
+        self._record(what, its, res, iterations, residuals)
         return x
 
     def solve_density(self, ft: np.ndarray) -> np.ndarray:
@@ -456,11 +454,15 @@ class BimMobility(LinearOperator):
         made) and the true residual, and reports non-convergence (:meth:`_report`)."""
         before = solver.products
         y, _new, res = solver.solve(b, self.eps_gmres, self.maxiter)
-        its = solver.products - before
+        self._record(what, solver.products - before, res, iterations, residuals)
+        return y
+
+    def _record(self, what: str, its: int, res: float, iterations: list,
+                residuals: list) -> None:
+        """Append a solve's products and residual to its lists and report non-convergence."""
         iterations.append(its)
         residuals.append(res)
         self._report(what, res, its)
-        return y
 
     def _report(self, what: str, res: float, its: int) -> None:
         """Warn (or raise, ``on_failure="raise"``) when a solve's full-accuracy relative
@@ -472,7 +474,7 @@ class BimMobility(LinearOperator):
                "raise maxiter or eps_gmres, or check for near-contact spheres")
         if self.on_failure == "raise":
             raise RuntimeError(msg)
-        warnings.warn(msg, BimConvergenceWarning, stacklevel=5)
+        warnings.warn(msg, BimConvergenceWarning, stacklevel=6)
 
     def velocities(self, sigma: np.ndarray) -> np.ndarray:
         """Rigid velocities (M, 6) read off from stacked densities."""
@@ -545,14 +547,10 @@ class BimMobility(LinearOperator):
         before = (fwd.products, adj.products)
         (yf, _, rf), (wa, _, ra) = solve_together([(fwd, b), (adj, z)], apply_many,
                                                   self.eps_gmres, self.maxiter)
-        for what, its, res, itl, rl in (
-                ("BIM GMRES", fwd.products - before[0], rf, self.gmres_iterations,
-                 self.residuals),
-                ("BIM adjoint GMRES", adj.products - before[1], ra, self.adjoint_iterations,
-                 self.adjoint_residuals)):
-            itl.append(its)
-            rl.append(res)
-            self._report(what, res, its)
+        self._record("BIM GMRES", fwd.products - before[0], rf, self.gmres_iterations,
+                     self.residuals)
+        self._record("BIM adjoint GMRES", adj.products - before[1], ra,
+                     self.adjoint_iterations, self.adjoint_residuals)
         u = self.velocities(self._precondition(yf)).reshape(-1)
         return u, pieces.rhs(wa)
 
