@@ -60,12 +60,13 @@ def print_markdown_table(names, sets, cell, label=lambda s: s) -> None:
         print(f"| {label(s)} | " + " | ".join(cell(s, lab) for lab in sets) + " |")
 
 
-def packed_lattice(m: int, steps: int = 40):
+def packed_lattice(m: int, steps: int = 40, scene: str = "lattice"):
     """The lattice scene of side ``m`` after ``steps`` cheap RPY steps: packed, with the
-    closest gaps at the 0.1a separation, as the shipped sets' instances are."""
-    from lcpbench.problems.suspension.scene import LatticeScene
+    closest gaps at the scene's kept separation (0.1a for ``lattice``, as the shipped sets'
+    instances are; 0.3a for ``paper-lattice``)."""
+    from lcpbench.core.registry import make_scene
 
-    scene = LatticeScene(m, model="rpy")
+    scene = make_scene(f"{scene}:m={m},model=rpy")
     for _ in range(steps):
         scene.step("bb-pgd")
     return scene

@@ -411,3 +411,22 @@ def test_cli_simulate_errors_exit_2(tmp_path, capsys, argv, msg):
     rc = main(["simulate", *argv, "--steps", "1", "--out", str(tmp_path / "x"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and msg in err and err.count("\n") == 1
+
+
+def test_paper_lattice_keeps_the_authors_gaps():
+    from lcpbench.core.registry import make_scene
+    from lcpbench.problems.suspension.scene import LatticeParams, PaperLatticeParams
+    from scipy.spatial.distance import pdist
+
+    scene = make_scene("paper-lattice:m=3,model=rpy")
+    P = scene.params
+    assert isinstance(P, PaperLatticeParams)
+    assert (P.spacing, P.separation, P.delta, P.dt, P.radius) == (2.5, 0.3, 0.63, 0.1, 1.0)
+    assert LatticeParams().separation == 0.1            # the default scene is unchanged
+    ns = [scene.step("bb-pgd").n for _ in range(25)]
+    assert ns[-1] > 20                                  # it packs
+    gaps = pdist(scene.centers) - 2.0
+    assert gaps.min() > 0.3 - 1e-4                      # and keeps 0.3a, not the 0.1a default
+    assert gaps.min() < 0.35                            # with contacts sitting at it
+    spec = make_scene("paper-lattice:m=2,separation=0.2,model=rpy")
+    assert spec.params.separation == 0.2 and spec.params.spacing == 2.5

@@ -72,8 +72,10 @@ truth near contact.
 
 from __future__ import annotations
 
+import copy
 import functools
 import warnings
+import weakref
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
@@ -287,16 +289,49 @@ class BimMobility(LinearOperator):
                            else projection_matrix(self.p, q_near))
         self._setup_interactions()
         n = M * 3 * N
-        cap = default_capacity(n) if recycle is None else max(int(recycle), 0)
-        self.recycle = cap
-        self._recycler = (RecycledGCR(lambda v: self._apply_bie(self._precondition(v)), n, cap)
+        self.recycle = default_capacity(n) if recycle is None else max(int(recycle), 0)
+        self._fresh_solvers()
+
+    def _fresh_solvers(self) -> None:
+        """New (empty) recycled spaces and empty iteration and residual records."""
+        n, cap = self.M * 3 * self._N, self.recycle
+        # the solvers reach this operator through a weak reference: a strong one would make
+        # a reference cycle, and the blocks and kept directions of every configuration would
+        # wait for Python's cyclic collector (measured: +20-70 MB per time step, until a
+        # 27-sphere simulation was killed for want of memory after 80 steps)
+        me = weakref.ref(self)
+        self._recycler = (RecycledGCR(lambda v: me()._apply_bie(me()._precondition(v)), n, cap)
                           if cap else None)
-        self._adj_recycler = (RecycledGCR(lambda v: self.adjoint_pieces.operator(v), n, cap)
+        self._adj_recycler = (RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap)
                               if cap else None)
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
         self.adjoint_iterations: list[int] = []
         self.adjoint_residuals: list[float] = []
+
+    def at_tolerance(self, eps_gmres: float) -> "BimMobility":
+        """The same discrete mobility solved to another GMRES tolerance, on this one's set-up.
+
+        The twin shares everything that depends only on the configuration and the order
+        (pair plan, stored near blocks, self operators, the transposed pieces), so it
+        costs no second set-up; it has its own recycled spaces and records, so that its
+        products neither use nor feed this operator's kept directions (each product's
+        cost stays its own, as a low fidelity's cost ratio needs).  This is how a low
+        fidelity of the high's own order, e.g. ``p8e3`` beside ``p = 8, eps 1e-8``, is
+        built (:func:`.contacts.build_contact_problem`): it differs from the high only by
+        where GMRES stops.
+
+        Raises
+        ------
+        ValueError
+            If ``eps_gmres`` is not in (0, 1).
+        """
+        eps = _check_eps(eps_gmres)
+        _ = self.adjoint_pieces                     # built once, shared by the twin
+        twin = copy.copy(self)
+        twin.eps_gmres = eps
+        twin._fresh_solvers()
+        return twin
 
     def _setup_interactions(self, all_expansion: bool = False) -> None:
         """(Re)build the pair set-up (:class:`bim_pairs.PairPlan`); ``all_expansion``

@@ -14,6 +14,7 @@ arrays, built on first use; no per-pair matrices.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -78,6 +79,11 @@ def fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.n
     return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)
 
 
+_READS = ("M", "p", "mu", "far", "quad_tol", "centers", "radii", "plan", "basis", "readout",
+          "self_ops", "tgt_pts", "tgt_nrm")
+"""The attributes of :class:`bim.BimMobility` the transposed pieces use."""
+
+
 class AdjointPieces:
     """Transposed pieces of one :class:`bim.BimMobility` (structures built once).
 
@@ -88,7 +94,10 @@ class AdjointPieces:
     """
 
     def __init__(self, op: BimMobility) -> None:
-        self.op = op
+        # what the pieces read of the operator, not the operator itself (which holds the
+        # pieces: a reference cycle would keep every configuration's arrays alive until
+        # Python's cyclic collector runs)
+        self.op = SimpleNamespace(**{k: getattr(op, k) for k in _READS})
         plan = op.plan
         so = op.self_ops
         self.self_block = np.ascontiguousarray(so.Kp + so.L)

@@ -468,7 +468,11 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
     low_ops = {}
     Dt = contacts.D.T.tocsr()
     for key, spec in lows.items():
-        lm = resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)
+        if (spec["model"] == "bim" and spec["p"] == p and model == "bim"
+                and hasattr(mob, "at_tolerance")):
+            lm = mob.at_tolerance(spec["eps_gmres"])       # the high's order: shared set-up
+        else:
+            lm = resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)
         lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
         if lsym:
             mv = (lambda v, lm=lm: _symmetrized(lm, contacts.D, Dt, v))

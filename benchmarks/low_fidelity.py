@@ -1,0 +1,83 @@
+"""Error and cost of low-fidelity contact operators on one packed lattice configuration.
+
+Usage::
+
+    python benchmarks/low_fidelity.py                                  # 0.1a lattice, m = 3
+    python benchmarks/low_fidelity.py --scene paper-lattice --m 3 --low p4e6 p4 p6
+    python benchmarks/low_fidelity.py --low p8e3 p8e4 --repeat 3
+
+The scene is stepped ``--pack`` times with RPY (cheap) until it has packed; on that
+configuration the step's contact problem is built with the high fidelity (BIM p = 8,
+eps_gmres 1e-8) and every ``--low`` fidelity, exactly as a time step builds it
+(:func:`build_contact_problem`, which times one product of each operator on its fresh
+mobility: the cost ratio a Bi-PQN step counts). Every operator is then formed densely and
+symmetrised as ``lcpbench generate`` stores it, and the script prints each low's relative
+2-norm error against the high matrix and its cost ratio (median over ``--repeat`` builds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from common import packed_lattice
+
+from lcpbench.core.operator import dense_uncounted
+from lcpbench.problems.suspension.contacts import build_contact_problem
+
+DEFAULT_LOWS = ["p3e6", "p4e6", "p6e6", "p4", "p6", "p8e3", "p8e4", "p8e5", "rpy"]
+
+
+def build(scene, lows: list[str], p: int, eps: float):
+    """The step's contact problem with the high fidelity and ``lows``."""
+    P = scene.params
+    F, T = scene.loads()
+    return build_contact_problem(scene.centers, scene.radii, F, T, dt=P.dt, delta=P.delta,
+                                 separation=P.separation, model="bim", p=p, eps_gmres=eps,
+                                 low=lows)
+
+
+def dense_sym(op) -> np.ndarray:
+    A = np.asarray(dense_uncounted(op), dtype=np.float64)
+    return 0.5 * (A + A.T)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="lattice", help="lattice (0.1a) or paper-lattice (0.3a)")
+    ap.add_argument("--m", type=int, default=3)
+    ap.add_argument("--pack", type=int, default=40, help="RPY steps before the measurement")
+    ap.add_argument("--p", type=int, default=8, help="order of the high fidelity")
+    ap.add_argument("--eps", type=float, default=1e-8, help="GMRES tolerance of the high")
+    ap.add_argument("--low", nargs="+", default=DEFAULT_LOWS)
+    ap.add_argument("--repeat", type=int, default=1, help="builds timed (median ratio)")
+    args = ap.parse_args()
+    scene = packed_lattice(args.m, args.pack, args.scene)
+    ratios: dict[str, list[float]] = {k: [] for k in args.low}
+    prob = None
+    for _ in range(max(1, args.repeat)):
+        prob = build(scene, args.low, args.p, args.eps)
+        t_high = prob.lcp.A.cost
+        for k in args.low:
+            ratios[k].append(prob.lcp.low[k].cost / t_high)
+    lcp = prob.lcp
+    gaps = prob.contacts.gaps
+    print(f"{args.scene} m = {args.m} after {args.pack} RPY steps: n = {lcp.n} contacts, "
+          f"gaps {gaps.min():.3f} .. {gaps.max():.3f}; high p = {args.p}, eps {args.eps:g}, "
+          f"one product {lcp.A.cost:.3f} s", flush=True)
+    t0 = time.perf_counter()
+    A = dense_sym(lcp.A)
+    nA = np.linalg.norm(A, 2)
+    print(f"high formed in {time.perf_counter() - t0:.1f} s", flush=True)
+    print("| low | rel. 2-norm error | cost ratio |")
+    print("|---|---|---|")
+    for k in args.low:
+        L = dense_sym(lcp.low[k])
+        err = np.linalg.norm(L - A, 2) / nA
+        print(f"| {k} | {err:.3g} | {np.median(ratios[k]):.3g} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
