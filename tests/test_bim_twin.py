@@ -87,3 +87,60 @@ def test_operators_are_freed_without_the_cyclic_collector():
         assert [r() is None for r in refs] == [True] * 4
     finally:
         gc.enable()
+
+
+def test_split_low_keeps_near_pairs_and_truncates_far_ones():
+    from lcpbench.problems.suspension.bim_split import split_mobility
+
+    centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
+    high = BimMobility(centers, 1.0, p=6, eps_gmres=1e-10)
+    x = np.linspace(-1.0, 2.0, 30)
+    u = high @ x
+    errs = []
+    for q in (1, 2, 4, 6):
+        low = split_mobility(high, q, 1e-10, decay=0.0)
+        assert low.plan is high.plan and low.far_degree == q
+        # which pairs are near: gap below half the source radius
+        gaps = [np.linalg.norm(centers[i] - centers[j]) - 2.0
+                for i, j in zip(high.plan.block_tgt, high.plan.block_src)]
+        assert low.n_full_pairs == sum(g < 0.5 for g in gaps) > 0
+        assert low.n_truncated_pairs == sum(g >= 0.5 for g in gaps) > 0
+        errs.append(np.linalg.norm(low @ x - u) / np.linalg.norm(u))
+    # a lower far-field degree is a coarser low; degree p truncates nothing these pairs use
+    assert errs[0] > errs[1] > errs[2] > errs[3]
+    assert errs[0] > 1e-3 and errs[3] < 1e-8
+    # the degree falls with distance: less block work, no pair above far_degree
+    fixed, falls = split_mobility(high, 4, 1e-10, decay=0.0), split_mobility(high, 4, 1e-10)
+    assert falls.block_work < fixed.block_work
+    assert max(falls.pairs_per_degree) == 4 and min(falls.pairs_per_degree) < 4
+    assert set(fixed.pairs_per_degree) == {4}
+    # every pair near: the split low is the high operator
+    near_all = split_mobility(high, 1, 1e-10, near_gap=100.0)
+    assert near_all.n_truncated_pairs == 0
+    assert np.linalg.norm(near_all @ x - u) <= 1e-9 * np.linalg.norm(u)
+    with pytest.raises(NotImplementedError, match="transposed"):
+        low.T @ x
+    with pytest.raises(ValueError, match="far_degree"):
+        split_mobility(high, 7, 1e-3)
+    with pytest.raises(ValueError, match="near_gap"):
+        split_mobility(high, 2, 1e-3, near_gap=-1.0)
+
+
+def test_split_low_by_name_in_a_contact_problem():
+    from lcpbench.problems.suspension.contacts import parse_fidelity
+
+    assert parse_fidelity("p8f4e3", 8, 1e-8) == {"model": "bim", "p": 8, "eps_gmres": 1e-3,
+                                                  "far_degree": 4}
+    with pytest.raises(ValueError, match="far-field degree"):
+        parse_fidelity("p4f6e3", 8, 1e-8)
+    centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
+    F = np.tile([[0.5, -0.2, 0.1]], (5, 1))
+    prob = build_contact_problem(centers, 1.0, F, np.zeros((5, 3)), delta=0.5, model="bim",
+                                 p=4, eps_gmres=1e-8, low=["p4f4e6", "p3e6"])
+    n = prob.lcp.n
+    A = np.column_stack([prob.lcp.A @ e for e in np.eye(n)])
+    L = np.column_stack([prob.lcp.low["p4f4e6"] @ e for e in np.eye(n)])
+    L3 = np.column_stack([prob.lcp.low["p3e6"] @ e for e in np.eye(n)])
+    assert prob.lcp.low["p4f4e6"].cost > 0
+    assert np.linalg.norm(L - A) < np.linalg.norm(L3 - A)
+    assert np.linalg.norm(L - A) < 5e-2 * np.linalg.norm(A)

@@ -207,7 +207,7 @@ def self_mobility(centers, radii, mu: float = 1.0) -> LinearOperator:
     return aslinearoperator(sp.diags(diag))
 
 
-_FIDELITY = re.compile(r"^p(\d+)(?:e(\d+))?$")
+_FIDELITY = re.compile(r"^p(\d+)(?:f(\d+))?(?:e(\d+))?$")
 
 
 def parse_fidelity(name: str, p: int, eps_gmres: float) -> dict:
@@ -218,25 +218,36 @@ def parse_fidelity(name: str, p: int, eps_gmres: float) -> dict:
     name : str
         ``"rpy"``, ``"self"`` (no interactions), ``"bim"`` (boundary integral at
         the given ``p`` and ``eps_gmres``), ``"p<k>"`` (boundary integral at order
-        ``k``) or ``"p<k>e<j>"`` (order ``k``, GMRES tolerance ``1e-j``), e.g.
-        ``p4e6`` for the paper's low fidelity ``p = 4, eps = 1e-6``.
+        ``k``), ``"p<k>e<j>"`` (order ``k``, GMRES tolerance ``1e-j``), e.g.
+        ``p4e6`` for the paper's low fidelity ``p = 4, eps = 1e-6``, or
+        ``"p<k>f<q>e<j>"``: order ``k`` near contact with the far field truncated at
+        degree ``q`` (:mod:`.bim_split`), e.g. ``p8f4e3``.
     p, eps_gmres
         The defaults for the parts the name leaves open.
 
     Returns
     -------
     dict
-        ``{"model": ..., "p": ..., "eps_gmres": ...}``.
+        ``{"model": ..., "p": ..., "eps_gmres": ...}``, and ``"far_degree"`` for a
+        distance-split fidelity.
     """
     key = str(name).strip().lower()
     if key in ("rpy", "self", "bim"):
         return {"model": key, "p": int(p), "eps_gmres": float(eps_gmres)}
     m = _FIDELITY.match(key)
     if m:
-        eps = float(f"1e-{m.group(2)}") if m.group(2) else float(eps_gmres)
-        return {"model": "bim", "p": int(m.group(1)), "eps_gmres": eps}
+        eps = float(f"1e-{m.group(3)}") if m.group(3) else float(eps_gmres)
+        out = {"model": "bim", "p": int(m.group(1)), "eps_gmres": eps}
+        if m.group(2) is not None:
+            q = int(m.group(2))
+            if not 1 <= q <= out["p"]:
+                raise ValueError(f"fidelity {name!r}: the far-field degree {q} must be between "
+                                 f"1 and the order {out['p']}, e.g. p8f4e3")
+            out["far_degree"] = q
+        return out
     raise ValueError(f"unknown fidelity {name!r}; use rpy, self, bim, p<k> (boundary integral "
-                     "at order k) or p<k>e<j> (order k, GMRES tolerance 1e-j), e.g. p4e6")
+                     "at order k), p<k>e<j> (order k, GMRES tolerance 1e-j), e.g. p4e6, or "
+                     "p<k>f<q>e<j> (far field truncated at degree q), e.g. p8f4e3")
 
 
 def resolve_mobility(centers, radii, model: MobilityModel = "rpy", p: int = 8,
@@ -468,12 +479,10 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
     low_ops = {}
     Dt = contacts.D.T.tocsr()
     for key, spec in lows.items():
-        if (spec["model"] == "bim" and spec["p"] == p and model == "bim"
-                and hasattr(mob, "at_tolerance")):
-            lm = mob.at_tolerance(spec["eps_gmres"])       # the high's order: shared set-up
-        else:
-            lm = resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)
+        lm = _low_mobility(mob, spec, c, r, p if model == "bim" else None, mu)
         lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
+        if "far_degree" in spec:
+            lsym = False               # forward only: the split low has no transpose
         if lsym:
             mv = (lambda v, lm=lm: _symmetrized(lm, contacts.D, Dt, v))
         else:
@@ -495,6 +504,21 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)
     lcp = LCP(high, b, x0=x0, low=low_ops, name=name, meta=info)
     return ContactProblem(contacts, mob, U_nc, lcp, dmd, setup)
+
+
+def _low_mobility(high: LinearOperator, spec: dict, c: np.ndarray, r: np.ndarray,
+                  high_p: Optional[int], mu: float) -> LinearOperator:
+    """The mobility of one low fidelity; a boundary-integral low of the high's own order is
+    built on the high's set-up (:meth:`BimMobility.at_tolerance`, :mod:`.bim_split`)."""
+    same = spec["model"] == "bim" and spec["p"] == high_p and hasattr(high, "at_tolerance")
+    if "far_degree" in spec:
+        from .bim_split import split_mobility
+
+        base = high if same else resolve_mobility(c, r, "bim", spec["p"], spec["eps_gmres"], mu)
+        return split_mobility(base, spec["far_degree"], spec["eps_gmres"])
+    if same:
+        return high.at_tolerance(spec["eps_gmres"])
+    return resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)
 
 
 def _low_models(low, p: int, eps_gmres: float) -> dict:
