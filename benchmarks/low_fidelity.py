@@ -5,6 +5,8 @@ Usage::
     python benchmarks/low_fidelity.py                                  # 0.1a lattice, m = 3
     python benchmarks/low_fidelity.py --scene paper-lattice --m 3 --low p4e6 p4 p6
     python benchmarks/low_fidelity.py --low p8e3 p8e4 --repeat 3
+    python benchmarks/low_fidelity.py --scene paper-lattice --low p8f6e3 p4 \
+        --solve bb-pgd mono-pqn bi-pqn:low=p8f6e3 bi-pqn:low=p4
 
 The scene is stepped ``--pack`` times with RPY (cheap) until it has packed; on that
 configuration the step's contact problem is built with the high fidelity (BIM p = 8,
@@ -22,6 +24,7 @@ import time
 
 import numpy as np
 
+import lcpbench
 from common import packed_lattice
 
 from lcpbench.core.operator import dense_uncounted
@@ -53,6 +56,9 @@ def main() -> None:
     ap.add_argument("--eps", type=float, default=1e-8, help="GMRES tolerance of the high")
     ap.add_argument("--low", nargs="+", default=DEFAULT_LOWS)
     ap.add_argument("--repeat", type=int, default=1, help="builds timed (median ratio)")
+    ap.add_argument("--solve", nargs="*", default=[],
+                    help="solvers to run on the live LCP afterwards, e.g. bb-pgd "
+                         "bi-pqn:low=p8f6e3 (tol 1e-8, the paper's stop rule)")
     args = ap.parse_args()
     scene = packed_lattice(args.m, args.pack, args.scene)
     ratios: dict[str, list[float]] = {k: [] for k in args.low}
@@ -77,6 +83,14 @@ def main() -> None:
         L = dense_sym(lcp.low[k])
         err = np.linalg.norm(L - A, 2) / nA
         print(f"| {k} | {err:.3g} | {np.median(ratios[k]):.3g} |", flush=True)
+    if args.solve:
+        print("\n| solver | status | high MVPs | low MVPs | E-MVPs |")
+        print("|---|---|---|---|---|")
+    for spec in args.solve:
+        prob = build(scene, args.low, args.p, args.eps)      # fresh operators per solve
+        res = lcpbench.solve(prob.lcp, solver=spec, tol=1e-8)
+        print(f"| {spec} | {res.status.value} | {res.mvps} | {sum(res.lofi_mvps.values())} | "
+              f"{res.emvps:.2f} |", flush=True)
 
 
 if __name__ == "__main__":
