@@ -145,3 +145,28 @@ def test_usage_errors_exit_2(tmp_path, capsys):
     assert main(["generate", "--scene", SCENE, "--steps", "1", "--solver", "bi-pqn",
                  "--out", str(tmp_path / "x.h5"), "--quiet"]) == 2
     assert "needs low-fidelity" in capsys.readouterr().err
+
+
+def test_split_low_is_stored_with_its_knobs(tmp_path):
+    """A distance-split low (p<k>f<q>e<j>) of the boundary-integral scene is generated, stored
+    with its far-field degree and read back with its measured cost."""
+    out = tmp_path / "split.h5"
+    s = generate("paper-lattice:m=2,model=bim,p=3", "3", out, lows=["p3f1e3", "p2e6"],
+                 progress=False)
+    assert len(s.written) == 1
+    iid = instance_ids(out)[0]
+    with h5py.File(out, "r") as f:
+        la = f[f"instances/{iid}/low/p3f1e3"].attrs
+        assert int(la["far_degree"]) == 1 and int(la["p"]) == 3 and float(la["eps_gmres"]) == 1e-3
+        ratio = float(la["cost_ratio"])
+        assert 0 < ratio
+        A = f[f"instances/{iid}/A"][()]
+        L = f[f"instances/{iid}/low/p3f1e3/A"][()]
+        L2 = f[f"instances/{iid}/low/p2e6/A"][()]
+    assert A.shape[0] >= 1
+    err = np.linalg.norm(L - A) / np.linalg.norm(A)
+    assert 0 < err < 0.5
+    lcp = read_instance(out, iid)
+    assert set(lcp.low) == {"p3f1e3", "p2e6"}
+    assert np.isclose(lcp.low["p3f1e3"].cost, ratio)
+    assert np.linalg.norm(L2 - A) > 0
