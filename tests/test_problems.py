@@ -240,3 +240,19 @@ def test_checked_params_hold_literal_choices_and_strict_bounds():
         Params(mode="c")
     with pytest.raises(ValueError, match="k must be an integer >= 0 and < 5, got 5"):
         Params(k=5)
+
+
+def test_paper_lattice_set_holds_the_split_low_within_its_accuracy():
+    """The shipped 0.3a set: 20 packed instances whose distance-split low p8f6e3 is within
+    3e-3 of the high matrix (relative 2-norm) on every instance, and closer than p = 4."""
+    info = get_problem("set-paper-lattice-m3")
+    assert not info.default                          # the default run stays on the 0.1a set
+    lcps = list(info.func(make_params(info.name, info.params, {})))
+    assert len(lcps) == 20
+    for lcp in lcps:
+        A = lcp.dense()
+        nA = np.linalg.norm(A, 2)
+        err = {k: np.linalg.norm(np.column_stack([lcp.low[k] @ e for e in np.eye(lcp.n)]) - A, 2)
+               / nA for k in ("p8f6e3", "p4")}
+        assert err["p8f6e3"] < 3e-3 < err["p4"]
+        assert 0 < lcp.low["p8f6e3"].cost < 1
