@@ -140,8 +140,8 @@ class PaperLatticeParams(LatticeParams):
     time step 0.1, a kept minimum ``separation`` of 0.3 (three tenths of the radius)
     and candidate contacts within 1.1 x 0.3 radii of that separation (``delta = 0.3 +
     0.33``).  At a 0.3a gap the squeeze traction between two spheres spreads over about
-    sqrt(0.3) radii, three times wider than at the 0.1a of the default lattice scene,
-    so low spherical-harmonic orders resolve it far better (docs/mobility.md has every
+    sqrt(0.3) radii, 1.7 times wider than at the 0.1a of the default lattice scene, so
+    low spherical-harmonic orders resolve it far better (docs/mobility.md has every
     low fidelity's error on both scenes).  The default ``lattice`` scene, packed to
     0.1a, stays as the hard case.
     """
