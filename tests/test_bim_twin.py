@@ -124,6 +124,8 @@ def test_split_low_keeps_near_pairs_and_truncates_far_ones():
         split_mobility(high, 7, 1e-3)
     with pytest.raises(ValueError, match="near_gap"):
         split_mobility(high, 2, 1e-3, near_gap=-1.0)
+    with pytest.raises(ValueError, match="decay"):
+        split_mobility(high, 2, 1e-3, decay=float("nan"))
 
 
 def test_split_low_by_name_in_a_contact_problem():

@@ -11,10 +11,13 @@ fidelity's own discretisation near contact and makes the rest cheap:
   degree <= q, and its traction on the target is projected onto degree <= q: a
   ``nv(q) x nv(q)`` block instead of ``3N x nv(p)`` (about 19 times fewer multiply-adds at
   q = 4, p = 8), made once from the stored block.  q is ``far_degree`` for the closest of
-  these pairs and falls with distance so that every pair keeps the same relative
-  truncation: the field of a degree-l density decays like ``(a / R)^(l + 1)`` at centre
-  distance R, so a pair at R gets the least q with ``(a / R)^(q + 1) <=
-  (a / R0)^(far_degree + 1)``, R0 the distance of a pair at ``near_gap``;
+  these pairs and falls gently with distance: a pair at centre distance R (in source
+  radii) gets the least q with ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the
+  distance of a pair at ``near_gap``.  ``decay = 1`` would keep the relative truncation
+  of every pair equal if the field of a degree-l density simply decayed like
+  ``(a / R)^(l + 1)``; the peaked near-contact densities of packed spheres need more than
+  that, and ``decay = 0.5`` (the default) was the best measured trade (error against
+  block work, ``benchmarks/far_truncation.py``, docs/mobility.md);
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
 It is built from a high :class:`bim.BimMobility` and shares its set-up (pairs, stored
@@ -108,14 +111,15 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
         GMRES tolerance of the low.
     near_gap : float
         Pairs with a gap below ``near_gap`` source radii keep their full block.
-    decay : bool
-        Lower the degree of farther pairs (see the module docstring); False truncates
-        every far pair at ``far_degree``.
+    decay : float
+        How fast the degree falls with distance (see the module docstring): 0 truncates
+        every far pair at ``far_degree``, 0.5 is the default.
 
     Raises
     ------
     ValueError
-        ``far_degree`` outside ``1..p``, ``near_gap`` negative, ``eps_gmres`` outside (0, 1).
+        ``far_degree`` outside ``1..p``, ``near_gap`` or ``decay`` negative, ``eps_gmres``
+        outside (0, 1).
     """
     if isinstance(far_degree, bool) or int(far_degree) != far_degree or not (
             1 <= int(far_degree) <= high.p):
@@ -125,6 +129,10 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     if not (np.isfinite(gap_limit) and gap_limit >= 0):
         raise ValueError(f"near_gap = {near_gap!r} must be a number >= 0 (in source radii, "
                          "e.g. 0.5)")
+    fall = float(decay)
+    if not (np.isfinite(fall) and fall >= 0):
+        raise ValueError(f"decay = {decay!r} must be a number >= 0 (0: every far pair at "
+                         "far_degree; 0.5: the default fall of the degree with distance)")
     base = high.at_tolerance(eps_gmres)
     low = SplitMobility.__new__(SplitMobility)
     low.__dict__.update(base.__dict__)
@@ -137,7 +145,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     reach = (r[tgt] + r[src]) / r[src] + gap_limit               # R0 of each pair
     degree = np.full(tgt.size, -1)                               # -1: full block
     far = dist >= reach
-    ratio = (np.log(reach[far]) / np.log(dist[far])) ** float(decay)
+    ratio = (np.log(reach[far]) / np.log(dist[far])) ** fall
     degree[far] = np.clip(np.ceil((low.far_degree + 1) * ratio - 1e-9) - 1, 1, low.far_degree)
     low._groups = []
     work = 0
