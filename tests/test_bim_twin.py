@@ -118,8 +118,16 @@ def test_split_low_keeps_near_pairs_and_truncates_far_ones():
     near_all = split_mobility(high, 1, 1e-10, near_gap=100.0)
     assert near_all.n_truncated_pairs == 0
     assert np.linalg.norm(near_all @ x - u) <= 1e-9 * np.linalg.norm(u)
-    with pytest.raises(NotImplementedError, match="transposed"):
-        low.T @ x
+    # the transpose is exact: <y, M x> = <M' y, x>, alone and in the paired product
+    tight = split_mobility(high, 3, 1e-12)
+    y = np.cos(np.arange(30.0))
+    lhs, rhs = y @ (tight @ x), (tight.T @ y) @ x
+    assert abs(lhs - rhs) <= 1e-9 * abs(lhs)
+    u2, v2 = tight.matvec_rmatvec(x, y)
+    assert np.allclose(u2, tight @ x, rtol=1e-9, atol=1e-13)
+    assert np.allclose(v2, tight.T @ y, rtol=1e-9, atol=1e-13)
+    # and it is the split's transpose, not the high's
+    assert abs((high.T @ y) @ x - rhs) > 1e-6 * abs(rhs)
     with pytest.raises(ValueError, match="far_degree"):
         split_mobility(high, 7, 1e-3)
     with pytest.raises(ValueError, match="near_gap"):

@@ -21,10 +21,12 @@ fidelity's own discretisation near contact and makes the rest cheap:
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
 It is built from a high :class:`bim.BimMobility` and shares its set-up (pairs, stored
-blocks, self operators, preconditioner); only the truncated far blocks are new.  The
-product is the forward mobility only: its transpose is not provided, so the contact
-operator of this low is ``D' M D`` without explicit symmetrisation (the discrete mobility's
-own asymmetry at p = 8, about 4e-5, is far below what a low fidelity is accurate to).
+blocks, self operators, preconditioner); only the truncated far blocks are new.  Its
+transpose is exact (``M.T @ y``: the same pieces transposed, the truncated blocks by the
+compiled block-transpose kernel), but the contact operators of lcpbench use this low
+unsymmetrised, ``D' M D``, with one forward solve per product: the discrete mobility's own
+asymmetry at p = 8, about 4e-5, is far below what a low fidelity is accurate to, and
+symmetrising would double the low's cost.
 
 Pairs that the high evaluates by direct quadrature rather than a stored block (beyond the
 block budget, from about a hundred spheres at p = 8) stay as they are: the split then
@@ -37,7 +39,9 @@ from __future__ import annotations
 import numpy as np
 
 from .bim import BimMobility
+from .bim_adjoint import AdjointPieces
 from .kernels import PARALLEL_WORK, apply_blocks, apply_blocks_serial, dense_rows
+from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
 
 __all__ = ["SplitMobility", "split_mobility", "DEFAULT_NEAR_GAP"]
 
@@ -52,8 +56,8 @@ class SplitMobility(BimMobility):
     """The mobility of a :class:`bim.BimMobility` with the far field truncated in degree.
 
     Build it with :func:`split_mobility`.  Products (``@``, ``matvec``) solve the traction
-    equation with the split operator to the low's ``eps_gmres``; the transposed product
-    raises ``NotImplementedError``.
+    equation with the split operator to the low's ``eps_gmres``; transposed products
+    (``M.T @ y``, ``rmatvec``, ``matvec_rmatvec``) solve its exact transpose.
 
     Attributes
     ----------
@@ -77,7 +81,7 @@ class SplitMobility(BimMobility):
         near pairs and degree-truncated blocks for the far ones."""
         out, coef = self._apply_bie_unblocked(sigma, rung)
         if coef is not None:
-            for blocks, ptr, src, sel, synth in self._groups:
+            for blocks, ptr, src, sel, synth, _adj in self._groups:
                 fn = apply_blocks if blocks.size > PARALLEL_WORK else apply_blocks_serial
                 if sel is None:                               # the full near blocks
                     fn(blocks, ptr, src, coef, out)
@@ -87,14 +91,44 @@ class SplitMobility(BimMobility):
                 out += dense_rows(acc, synth)
         return out.reshape(-1)
 
-    def _refuse_transpose(self, *args, **kwargs):
-        raise NotImplementedError(
-            "the distance-split low fidelity has no transposed product; use it unsymmetrised "
-            "(the contact operators of lcpbench do), or the full BimMobility for M'")
+    @property
+    def adjoint_pieces(self) -> AdjointPieces:
+        """The transposed pieces, with the split blocks in place of the high's blocks."""
+        if self._pieces is None:
+            self._pieces = _SplitAdjoint(self)
+        return self._pieces
 
-    _rmatvec = _refuse_transpose
-    solve_adjoint = _refuse_transpose
-    matvec_rmatvec = _refuse_transpose
+    def _apply_pair(self, u_f: np.ndarray, u_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``G u_f`` and ``G' u_a`` of the split operator (no fused pass: its blocks differ
+        from the stored ones the fused kernel reads)."""
+        return (self._apply_bie(self._precondition(u_f)),
+                self.adjoint_pieces.operator(u_a))
+
+
+class _SplitAdjoint(AdjointPieces):
+    """:class:`bim_adjoint.AdjointPieces` of a :class:`SplitMobility`: the unblocked pieces
+    are the high's, the blocks are the split's, transposed."""
+
+    def __init__(self, op: SplitMobility) -> None:
+        super().__init__(op)
+        self.groups = op._groups
+
+    def apply_bie(self, w: np.ndarray) -> np.ndarray:
+        """Transpose of :meth:`SplitMobility._apply_bie`."""
+        out, coef_bar, ob = self.apply_bie_unblocked(w)
+        if coef_bar is not None:
+            for blocks, _ptr, _src, sel, synth, (order, src_ptr, tgt) in self.groups:
+                fn = (apply_blocks_adjoint if blocks.size > PARALLEL_WORK
+                      else apply_blocks_adjoint_serial)
+                if sel is None:
+                    fn(blocks, src_ptr, order, tgt, ob, coef_bar)
+                    continue
+                acc_bar = np.ascontiguousarray(dense_rows(ob, np.ascontiguousarray(synth.T)))
+                part = np.zeros((self.op.M, sel.size))
+                fn(blocks, src_ptr, order, tgt, acc_bar, part)
+                coef_bar[:, sel] += part
+            out += dense_rows(coef_bar, self.analysis)
+        return out.reshape(-1)
 
 
 def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
@@ -162,11 +196,14 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
                 part = idx[k0:k0 + _CHUNK]
                 blocks[k0:k0 + part.size] = np.matmul(analysis, plan.blocks[part][:, :, sel])
             synth = np.ascontiguousarray(basis.B[:, sel].T)
-        low._groups.append((blocks, ptr, np.ascontiguousarray(src[idx]), sel, synth))
+        order = np.argsort(src[idx], kind="stable").astype(np.int64)    # for the transpose
+        src_ptr = np.searchsorted(src[idx][order], np.arange(high.M + 1)).astype(np.int64)
+        low._groups.append((blocks, ptr, np.ascontiguousarray(src[idx]), sel, synth,
+                            (order, src_ptr, np.ascontiguousarray(tgt[idx]))))
         work += blocks.size
     low.n_full_pairs = int((degree < 0).sum())
     low.n_truncated_pairs = int(far.sum())
     low.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
     low.block_work = work / max(plan.blocks.size, 1)
-    low._pieces = None                        # the transposed pieces are refused anyway
+    low._pieces = None                        # its own transposed pieces, built on first use
     return low

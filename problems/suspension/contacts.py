@@ -482,7 +482,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         lm = _low_mobility(mob, spec, c, r, p if model == "bim" else None, mu)
         lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
         if "far_degree" in spec:
-            lsym = False               # forward only: the split low has no transpose
+            lsym = False               # one solve per product (bim_split: why that is enough)
         if lsym:
             mv = (lambda v, lm=lm: _symmetrized(lm, contacts.D, Dt, v))
         else:
