@@ -13,7 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lcpbench.toolkit.blas import one_blas_thread
+
 __all__ = ["CottleBounds", "cottle_bounds", "cottle_c"]
+
 
 @dataclass(frozen=True)
 class CottleBounds:
@@ -210,20 +213,8 @@ def cottle_bounds(A, *, starts: int | None = 32, random_starts: int = 8, seed: i
             polish is not None and polish < 0):
         raise ValueError("cottle_c: starts must be >= 1 (or None for all n), random_starts, "
                          "polish >= 0 and iters >= 1")
-    with _one_blas_thread():
+    with one_blas_thread():
         return _cottle_bounds(A, starts, random_starts, seed, iters, polish, polish_max_n)
-
-
-def _one_blas_thread():
-    """Run the block with one BLAS thread (threadpoolctl), restoring the counts after.
-
-    The many small dense products and SLSQP's small factorisations of :func:`cottle_bounds`
-    run an order of magnitude faster without thread start-up and contention on a loaded
-    machine.
-    """
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _cottle_bounds(A: np.ndarray, starts, random_starts, seed, iters, polish,
