@@ -17,9 +17,9 @@
 # plots per lattice size; the measured table is in docs/benchmarks.md.
 #
 # The three simulations of one process hold three operators: 3 x 8.9 GB at m = 5 (measured
-# in its first steps), more than a 24 GB machine has. SEPARATE=1 runs one solver per process instead, CHUNK (default 10) steps
-# at a time, the three in turn, so each holds only its own operator and all see the same load
-# on average (not step by step); resuming works the same way.
+# in its first steps), more than a 24 GB machine has. SEPARATE=1 runs one solver per process
+# instead, CHUNK (default 10) steps at a time, the three in turn, so each holds only its own
+# operator and all see the same load on average (not step by step); resuming works the same.
 set -euo pipefail
 OUT=${1:-reports/online-paper}
 STEPS=${2:-100}
