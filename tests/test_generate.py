@@ -170,3 +170,45 @@ def test_split_low_is_stored_with_its_knobs(tmp_path):
     assert set(lcp.low) == {"p3f1e3", "p2e6"}
     assert np.isclose(lcp.low["p3f1e3"].cost, ratio)
     assert np.linalg.norm(L2 - A) > 0
+
+
+def test_resume_starts_from_the_checkpoint_not_step_0(tmp_path, capsys):
+    """An interrupted run resumes from the state after its last simulated step."""
+    from lcpbench.workflows.generate import checkpoint_file
+
+    path = tmp_path / "ckpt.h5"
+    first = generate(SCENE, "20", path, lows=["self"], progress=False)
+    assert first.simulated == 21 and checkpoint_file(path).exists()
+    more = generate(SCENE, "20-22", path, lows=["self"], progress=False)
+    assert more.kept == [instance_id(20)] and more.written == [instance_id(21), instance_id(22)]
+    assert more.simulated == 2                      # steps 21 and 22 only, not 0-22
+    fresh = generate(SCENE, "21-22", tmp_path / "fresh.h5", lows=["self"], progress=False)
+    for iid in (instance_id(21), instance_id(22)):
+        a, b = read_instance(path, iid), read_instance(tmp_path / "fresh.h5", iid)
+        np.testing.assert_array_equal(a.dense(), b.dense())
+        np.testing.assert_array_equal(a.b, b.b)
+        np.testing.assert_array_equal(a.x0, b.x0)   # the carried warm start survived too
+
+
+def test_a_checkpoint_that_cannot_serve_is_set_aside_with_a_reason(tmp_path, capsys):
+    from lcpbench.workflows.generate import checkpoint_file
+
+    path = tmp_path / "late.h5"
+    generate(SCENE, "21", path, lows=["self"], progress=False)
+    capsys.readouterr()
+    # step 20 lies before the checkpoint (after step 21): simulate from 0, say why
+    back = generate(SCENE, "20-21", path, lows=["self"], progress=False)
+    err = capsys.readouterr().err
+    assert back.simulated == 21 and back.written == [instance_id(20)]
+    assert "not resuming" in err and "step 20 still has to be stored" in err
+    # another tolerance: the checkpoint's trajectory is not this run's
+    other = tmp_path / "tol.h5"
+    generate(SCENE, "20", other, lows=["self"], progress=False)
+    capsys.readouterr()
+    again = generate(SCENE, "20-21", other, lows=["self"], tol=1e-6, progress=False)
+    assert again.simulated == 22 and "other settings (tol)" in capsys.readouterr().err
+    # an unreadable checkpoint is named and set aside, never a crash
+    checkpoint_file(other).write_bytes(b"not a checkpoint")
+    last = generate(SCENE, "20-22", other, lows=["self"], tol=1e-6, progress=False)
+    assert last.simulated == 23 and last.written == [instance_id(22)]
+    assert checkpoint_file(other).name in capsys.readouterr().err

@@ -23,11 +23,20 @@ chosen step the instance is written to an HDF5 set (layout of
 
 Step numbers are the scene's 0-based step indices. Steps before the first
 chosen one (and between chosen ones) are simulated but not stored. The scene is
-deterministic, so a run into an existing file re-simulates and skips the
-instances the file already holds (after verifying them): an interrupted run
-resumes, and a longer ``--steps`` range appends. The simulation never depends
-on what is stored: it always solves the matrix-free LCP, so a resumed file
-holds the same instances as one written in a single run.
+deterministic, so a run into an existing file skips the instances the file
+already holds (after verifying them): an interrupted run resumes, and a longer
+``--steps`` range appends. The simulation never depends on what is stored: it
+always solves the matrix-free LCP, so a resumed file holds the same instances
+as one written in a single run.
+
+Resuming does not re-simulate the steps already done: after every step the
+scene's state (positions, orientations, the previous contacts and forces) is
+checkpointed atomically to ``<out stem>.checkpoint.npz`` beside the set (format
+of :mod:`lcpbench.workflows.checkpoint`), and a rerun starts from it when its
+settings (scene, solver, stop rule, tolerance, budget) are the same and no step
+still to be stored lies before it. Otherwise the rerun says why and simulates
+from step 0. The checkpoint stays after the run, so a longer ``--steps`` range
+appends without re-simulating either; delete it to reclaim its few kilobytes.
 """
 
 from __future__ import annotations
@@ -55,9 +64,10 @@ from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.sets import SetWriter, instance_ids, read_instance
+from lcpbench.workflows.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
 
 __all__ = ["generate", "parse_steps", "parse_lows", "instance_id", "default_cache_dir",
-           "portable_command", "GenerateSummary"]
+           "portable_command", "checkpoint_file", "GenerateSummary"]
 
 _P_LIST = re.compile(r"^p\s*=\s*(.+)$")
 
@@ -331,8 +341,15 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
         f.attrs["steps"] = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
         todo = [s for s in wanted if instance_id(s) not in kept]
         last_needed = todo[-1] if todo else -1
-        bar = tqdm(total=last_needed + 1, desc=f"generate {name}", unit="step",
-                   disable=not progress, file=sys.stderr)
+        ckpt_path = checkpoint_file(out)
+        ckpt_config = {"scene": parse_spec(scene_spec)[0], "scene_params": json.dumps(
+            dataclasses.asdict(sim_params), sort_keys=True, default=str), "solver": solver,
+            "stop": stop, "tol": float(tol), "max_emvps": float(max_emvps)}
+        if todo:
+            _resume_scene(scene, ckpt_path, ckpt_config, todo[0])
+        bar = tqdm(total=last_needed + 1, initial=min(scene.step_index, last_needed + 1),
+                   desc=f"generate {name}", unit="step", disable=not progress,
+                   file=sys.stderr)
         simulated = 0
         try:
             while scene.step_index <= last_needed:
@@ -348,6 +365,9 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
                                 rejected)
                 res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget)
                 scene.advance(problem, res.x)
+                save_checkpoint(ckpt_path, Checkpoint(step=k, config=ckpt_config,
+                                                      scene_state=scene.get_state(),
+                                                      row={"step": k}))
                 simulated += 1
                 bar.set_postfix(step=k, n=lcp.n, stored=len(written) + len(kept))
                 bar.update(1)
@@ -357,6 +377,38 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     return GenerateSummary(path=out, written=written, kept=kept, simulated=simulated,
                            references_rejected=rejected,
                            seconds=time.perf_counter() - t_start)
+
+
+def checkpoint_file(out: Union[str, Path]) -> Path:
+    """The simulation checkpoint that :func:`generate` keeps beside the set ``out``."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.checkpoint.npz")
+
+
+def _resume_scene(scene, path: Path, config: dict, first_todo: int) -> None:
+    """Restore the scene from the checkpoint at ``path`` when it can serve this run."""
+    if not path.exists():
+        return
+    why = None
+    try:
+        ckpt = load_checkpoint(path)
+    except ValueError as exc:
+        why = str(exc)
+    else:
+        changed = sorted(k for k in config if ckpt.config.get(k) != config[k])
+        if changed:
+            why = f"it was written with other settings ({', '.join(changed)})"
+        elif ckpt.step >= first_todo:
+            why = (f"it is after step {ckpt.step}, and step {first_todo} still has to be "
+                   "stored")
+        else:
+            try:
+                scene.set_state(ckpt.scene_state)
+                return
+            except (KeyError, ValueError) as exc:
+                why = f"its state does not fit this scene ({exc})"
+    print(f"lcpbench generate: not resuming from {path.name}: {why}; simulating from "
+          "step 0 (the checkpoint will be overwritten)", file=sys.stderr)
 
 
 def _stored_steps(ids: Iterable[str]) -> set:
