@@ -21,7 +21,9 @@ def add_generate_parser(sub) -> None:
                     "dense high-fidelity A (n MVPs), b, the dense low-fidelity matrices with "
                     "their measured cost ratios, the QP consensus reference and provenance to "
                     "an HDF5 set. Re-running into the same file resumes: instances already "
-                    "in it are verified and kept.")
+                    "in it are verified and kept, and the simulation continues from the "
+                    "checkpoint FILE-stem.checkpoint.npz written beside the set after every "
+                    "step.")
     p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
                    help=f"scene spec (default {EXAMPLE_SCENE})")
     p.add_argument("--solver", default=DEFAULT_SOLVER, metavar="NAME[:k=v,...]",
