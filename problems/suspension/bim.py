@@ -362,7 +362,9 @@ class BimMobility(TransposedProducts, LinearOperator):
         plan = self.plan
         if coef is not None and plan.n_block_pairs:
             fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
-            fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out)
+            acc = np.zeros((self.M, plan.blocks.shape[1]))
+            fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc)
+            out += dense_rows(acc, plan.block_synth)
         return out.reshape(-1)
 
     def _apply_bie_unblocked(self, sigma: np.ndarray, rung: int = 0

@@ -196,7 +196,8 @@ class AdjointPieces:
             if plan.n_block_pairs:
                 fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
                       else apply_blocks_adjoint_serial)
-                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt, ob, coef_bar)
+                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt,
+                   dense_rows(ob, plan.block_synth_T), coef_bar)
             out += dense_rows(coef_bar, self.analysis)
         return out.reshape(-1)
 

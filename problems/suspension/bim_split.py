@@ -83,9 +83,6 @@ class SplitMobility(BimMobility):
         if coef is not None:
             for blocks, ptr, src, sel, synth, _adj in self._groups:
                 fn = apply_blocks if blocks.size > PARALLEL_WORK else apply_blocks_serial
-                if sel is None:                               # the full near blocks
-                    fn(blocks, ptr, src, coef, out)
-                    continue
                 acc = np.zeros((self.M, sel.size))
                 fn(blocks, ptr, src, np.ascontiguousarray(coef[:, sel]), acc)
                 out += dense_rows(acc, synth)
@@ -120,9 +117,6 @@ class _SplitAdjoint(AdjointPieces):
             for blocks, _ptr, _src, sel, synth, (order, src_ptr, tgt) in self.groups:
                 fn = (apply_blocks_adjoint if blocks.size > PARALLEL_WORK
                       else apply_blocks_adjoint_serial)
-                if sel is None:
-                    fn(blocks, src_ptr, order, tgt, ob, coef_bar)
-                    continue
                 acc_bar = np.ascontiguousarray(dense_rows(ob, np.ascontiguousarray(synth.T)))
                 part = np.zeros((self.op.M, sel.size))
                 fn(blocks, src_ptr, order, tgt, acc_bar, part)
@@ -186,16 +180,14 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     for q in np.unique(degree):
         idx = np.nonzero(degree == q)[0]                         # still sorted by target
         ptr = np.searchsorted(tgt[idx], np.arange(high.M + 1)).astype(np.int64)
-        if q < 0:
-            blocks, sel, synth = np.ascontiguousarray(plan.blocks[idx]), None, None
-        else:
-            sel = np.nonzero(basis.degree <= q)[0]
-            analysis = basis.A[sel]
-            blocks = np.empty((idx.size, sel.size, sel.size))
-            for k0 in range(0, idx.size, _CHUNK):
-                part = idx[k0:k0 + _CHUNK]
-                blocks[k0:k0 + part.size] = np.matmul(analysis, plan.blocks[part][:, :, sel])
-            synth = np.ascontiguousarray(basis.B[:, sel].T)
+        # the stored blocks are in coefficients on both sides (bim_pairs): a near pair keeps
+        # its block, a far one keeps the rows and columns of degree <= q
+        sel = np.arange(basis.degree.size) if q < 0 else np.nonzero(basis.degree <= q)[0]
+        blocks = np.empty((idx.size, sel.size, sel.size))
+        for k0 in range(0, idx.size, _CHUNK):
+            part = idx[k0:k0 + _CHUNK]
+            blocks[k0:k0 + part.size] = plan.blocks[part][:, sel][:, :, sel]
+        synth = np.ascontiguousarray(basis.B[:, sel].T)
         order = np.argsort(src[idx], kind="stable").astype(np.int64)    # for the transpose
         src_ptr = np.searchsorted(src[idx][order], np.arange(high.M + 1)).astype(np.int64)
         low._groups.append((blocks, ptr, np.ascontiguousarray(src[idx]), sel, synth,

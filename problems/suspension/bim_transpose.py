@@ -41,7 +41,10 @@ class TransposedProducts:
                 part = np.empty((plan.block_src.size, coef.shape[1]))
                 fn = (apply_blocks_both if plan.blocks.size > PARALLEL_WORK
                       else apply_blocks_both_serial)
-                fn(plan.blocks, plan.block_ptr, plan.block_src, coef, out, ob, part)
+                acc = np.zeros((self.M, plan.blocks.shape[1]))
+                fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc,
+                   dense_rows(ob, plan.block_synth_T), part)
+                out += dense_rows(acc, plan.block_synth)
                 coef_bar += pieces.by_source @ part
             out_a += dense_rows(coef_bar, pieces.analysis)
         return out.reshape(-1), pieces.precondition(out_a.reshape(-1))
