@@ -42,7 +42,11 @@ def worker(state: str, m: int, p: int, solver: str) -> None:
     from lcpbench.core.api import run_solver
     from lcpbench.problems.suspension.scene import LatticeScene
 
-    low = ["p4e6"] if solver.startswith("bi-pqn") else []
+    from lcpbench.core.specs import parse_spec
+
+    name, params = parse_spec(solver)
+    # a multi-fidelity solver gets the low its spec names (p4e6 when it names none)
+    low = [str(params.get("low", "p4e6"))] if name.startswith("bi-") else []
     scene = LatticeScene(m, model="bim", p=p, eps_gmres=1e-8, low=tuple(low))
     scene.set_state(dict(np.load(state)))
     t0 = time.perf_counter()

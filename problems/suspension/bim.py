@@ -28,7 +28,9 @@ accuracy, not by a fixed distance:
   >= 0.1a (DESIGN.md);
 * closer pairs: exact exterior spherical-harmonic expansions of the band-limited
   density (Corona & Veerapaneni, JCP 2018), stored as dense coefficient blocks
-  (``3N x n_vsh``: traction on sphere i per VSH coefficient of sphere j) within
+  (``n_vsh x n_vsh``: the traction's degree-p VSH coefficients on sphere i per VSH
+  coefficient of sphere j; :meth:`bim_pairs.PairPlan._build_blocks` says why the
+  traction's nodal rest above degree p can be dropped) within
   ``near_block_mb``, closest first; pairs that would need a source grid finer than p
   also get blocks while the budget lasts (a block product is much cheaper than that
   sum, see :mod:`bim_pairs`); expansion pairs beyond the budget are evaluated on the
@@ -176,10 +178,10 @@ class BimMobility(TransposedProducts, LinearOperator):
         Maximum total number of GMRES iterations per product.
     near_block_mb : float
         Memory budget (MB) for the dense near-field blocks built once per
-        configuration (``3N x n_vsh`` doubles per pair, 0.8 MB at p = 8); the
-        closest pairs get blocks first (4096 MB hold every pair of 64 spheres at
-        p = 8), the remaining expansion pairs are evaluated on the fly (same
-        values, slower).
+        configuration (``n_vsh x n_vsh`` doubles per pair, 0.45 MB at p = 8); the
+        closest pairs get blocks first (every pair of 64 spheres at p = 8 takes
+        1.8 GiB), the remaining expansion pairs are evaluated on the fly (same values,
+        slower).
     quad_tol : float, optional
         Accuracy (per unit density) of the quadrature between spheres; default
         ``eps_gmres / 100`` (clamped to [1e-15, 1e-4]).
