@@ -10,8 +10,8 @@ fidelity's own discretisation near contact and makes the rest cheap:
 * every other pair acts only through the source density's vector spherical harmonics of
   degree <= q, and its traction on the target is projected onto degree <= q: a
   ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)`` (about 11 times fewer multiply-adds
-  at q = 4, p = 8), the stored block's rows and columns of degree <= q.  q is ``far_degree`` for the closest of
-  these pairs and falls gently with distance: a pair at centre distance R (in source
+  at q = 4, p = 8), the stored block's rows and columns of degree <= q.  q is
+  ``far_degree`` for the closest of these pairs and falls gently with distance: a pair at centre distance R (in source
   radii) gets the least q with ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the
   distance of a pair at ``near_gap``.  ``decay = 1`` would keep the relative truncation
   of every pair equal if the field of a degree-l density simply decayed like
