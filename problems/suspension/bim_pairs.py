@@ -218,7 +218,7 @@ class PairPlan:
         the complement of a block's output never reaches a velocity (measured: products
         equal to 4e-16 at eps_gmres 1e-12, same GMRES iterations; ``tests/test_bim.py``).
         It saves 44% of the block memory and multiply-adds at p = 8 (243 rows, not 432):
-        measured 0.52x the time of a 27-sphere product (docs/mobility.md)."""
+        measured 0.51-0.58x the time of a 27-sphere product at p = 8 (docs/mobility.md)."""
         M, N, p = self.M, self.N, self.p
         b = self.basis
         nv = b.B.shape[1]

@@ -11,9 +11,10 @@ fidelity's own discretisation near contact and makes the rest cheap:
   degree <= q, and its traction on the target is projected onto degree <= q: a
   ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)`` (about 11 times fewer multiply-adds
   at q = 4, p = 8), the stored block's rows and columns of degree <= q.  q is
-  ``far_degree`` for the closest of these pairs and falls gently with distance: a pair at centre distance R (in source
-  radii) gets the least q with ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the
-  distance of a pair at ``near_gap``.  ``decay = 1`` would keep the relative truncation
+  ``far_degree`` for the closest of these pairs and falls gently with distance: a pair
+  at centre distance R (in source radii) gets the least q with
+  ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the distance of a pair at
+  ``near_gap``.  ``decay = 1`` would keep the relative truncation
   of every pair equal if the field of a degree-l density simply decayed like
   ``(a / R)^(l + 1)``; the peaked near-contact densities of packed spheres need more than
   that, and ``decay = 0.5`` (the default) was the best measured trade (error against
@@ -183,10 +184,13 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
         # the stored blocks are in coefficients on both sides (bim_pairs): a near pair keeps
         # its block, a far one keeps the rows and columns of degree <= q
         sel = np.arange(basis.degree.size) if q < 0 else np.nonzero(basis.degree <= q)[0]
-        blocks = np.empty((idx.size, sel.size, sel.size))
-        for k0 in range(0, idx.size, _CHUNK):
-            part = idx[k0:k0 + _CHUNK]
-            blocks[k0:k0 + part.size] = plan.blocks[part][:, sel][:, :, sel]
+        if q < 0:
+            blocks = np.ascontiguousarray(plan.blocks[idx])
+        else:
+            blocks = np.empty((idx.size, sel.size, sel.size))
+            for k0 in range(0, idx.size, _CHUNK):
+                part = idx[k0:k0 + _CHUNK]
+                blocks[k0:k0 + part.size] = plan.blocks[part][:, sel][:, :, sel]
         synth = np.ascontiguousarray(basis.B[:, sel].T)
         order = np.argsort(src[idx], kind="stable").astype(np.int64)    # for the transpose
         src_ptr = np.searchsorted(src[idx][order], np.arange(high.M + 1)).astype(np.int64)
