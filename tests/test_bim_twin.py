@@ -136,6 +136,44 @@ def test_split_low_keeps_near_pairs_and_truncates_far_ones():
         split_mobility(high, 2, 1e-3, decay=float("nan"))
 
 
+def test_compressed_split_low_cuts_block_singular_values():
+    from lcpbench.problems.suspension.bim_split import split_mobility
+
+    centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
+    high = BimMobility(centers, 1.0, p=6, eps_gmres=1e-10)
+    x = np.linspace(-1.0, 2.0, 30)
+    y = np.cos(np.arange(30.0))
+    dense = split_mobility(high, 4, 1e-12)
+    u = dense @ x
+    # a cut far below the blocks' accuracy: the factored blocks are the dense ones
+    exact = split_mobility(high, 4, 1e-12, rank_tol=1e-15)
+    assert exact.n_factored_blocks == high.plan.blocks.shape[0]
+    assert np.linalg.norm(exact @ x - u) <= 1e-9 * np.linalg.norm(u)
+    # a cut at 1e-2: fewer terms than any block's size, less work, a small change
+    cut = split_mobility(high, 4, 1e-12, rank_tol=1e-2)
+    nv = high.plan.blocks.shape[1]
+    assert 1 <= cut.mean_rank < nv / 2 and cut.block_work < dense.block_work
+    err = np.linalg.norm(cut @ x - u) / np.linalg.norm(u)
+    assert 1e-8 < err < 1e-2
+    # every block's cut really is at 1e-2 of its largest singular value: rebuild block 0
+    g = cut._groups[0]
+    first, second, off, rank, length = g.factors
+    L, r, o = length[0], rank[0], off[0]
+    E0 = second[o:o + r * L].reshape(r, L).T @ first[o:o + r * L].reshape(r, L)
+    B0 = high.plan.blocks[0, :L, :L]
+    s = np.linalg.svd(B0, compute_uv=False)
+    assert r == int((s > 1e-2 * s[0]).sum())
+    assert np.isclose(np.linalg.norm(E0 - B0, 2), s[r], rtol=1e-6)
+    # the transpose of the factored low is exact
+    lhs, rhs = y @ (cut @ x), (cut.T @ y) @ x
+    assert abs(lhs - rhs) <= 1e-9 * abs(lhs)
+    u2, v2 = cut.matvec_rmatvec(x, y)
+    assert np.allclose(v2, cut.T @ y, rtol=1e-9, atol=1e-13)
+    for bad in (0.0, 1.5, float("nan"), True, "a"):
+        with pytest.raises(ValueError, match="rank_tol"):
+            split_mobility(high, 4, 1e-3, rank_tol=bad)
+
+
 def test_split_low_by_name_in_a_contact_problem():
     from lcpbench.problems.suspension.contacts import parse_fidelity
 
@@ -143,6 +181,12 @@ def test_split_low_by_name_in_a_contact_problem():
                                                   "far_degree": 4}
     with pytest.raises(ValueError, match="far-field degree"):
         parse_fidelity("p4f6e3", 8, 1e-8)
+    assert parse_fidelity("p8f6r3e3", 8, 1e-8) == {"model": "bim", "p": 8, "eps_gmres": 1e-3,
+                                                    "far_degree": 6, "rank_tol": 1e-3}
+    with pytest.raises(ValueError, match="far-field degree too"):
+        parse_fidelity("p8r3e3", 8, 1e-8)
+    with pytest.raises(ValueError, match="r0"):
+        parse_fidelity("p8f6r0e3", 8, 1e-8)
     centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
     F = np.tile([[0.5, -0.2, 0.1]], (5, 1))
     prob = build_contact_problem(centers, 1.0, F, np.zeros((5, 3)), delta=0.5, model="bim",

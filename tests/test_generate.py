@@ -151,8 +151,8 @@ def test_split_low_is_stored_with_its_knobs(tmp_path):
     """A distance-split low (p<k>f<q>e<j>) of the boundary-integral scene is generated, stored
     with its far-field degree and read back with its measured cost."""
     out = tmp_path / "split.h5"
-    s = generate("paper-lattice:m=2,model=bim,p=3", "3", out, lows=["p3f1e3", "p2e6"],
-                 progress=False)
+    s = generate("paper-lattice:m=2,model=bim,p=3", "3", out,
+                 lows=["p3f1e3", "p2e6", "p3f1r1e3"], progress=False)
     assert len(s.written) == 1
     iid = instance_ids(out)[0]
     with h5py.File(out, "r") as f:
@@ -163,11 +163,16 @@ def test_split_low_is_stored_with_its_knobs(tmp_path):
         A = f[f"instances/{iid}/A"][()]
         L = f[f"instances/{iid}/low/p3f1e3/A"][()]
         L2 = f[f"instances/{iid}/low/p2e6/A"][()]
+        # the compressed split low: stored with its cut, and coarser than the uncut one
+        lr = f[f"instances/{iid}/low/p3f1r1e3"].attrs
+        assert float(lr["rank_tol"]) == 0.1 and int(lr["far_degree"]) == 1
+        Lr = f[f"instances/{iid}/low/p3f1r1e3/A"][()]
     assert A.shape[0] >= 1
+    assert np.linalg.norm(Lr - L) > 1e-6 * np.linalg.norm(L)
     err = np.linalg.norm(L - A) / np.linalg.norm(A)
     assert 0 < err < 0.5
     lcp = read_instance(out, iid)
-    assert set(lcp.low) == {"p3f1e3", "p2e6"}
+    assert set(lcp.low) == {"p3f1e3", "p2e6", "p3f1r1e3"}
     assert np.isclose(lcp.low["p3f1e3"].cost, ratio)
     assert np.linalg.norm(L2 - A) > 0
 

@@ -19,6 +19,14 @@ fidelity's own discretisation near contact and makes the rest cheap:
   ``(a / R)^(l + 1)``; the peaked near-contact densities of packed spheres need more than
   that, and ``decay = 0.5`` (the default) was the best measured trade (error against
   block work, ``benchmarks/far_truncation.py``, docs/mobility.md);
+* optionally (``rank_tol``), every block it keeps, full or truncated, is compressed by its
+  singular value decomposition to the terms above ``rank_tol`` times its largest singular
+  value, and applied as ``U (V' c)``: ``2 nv r`` multiply-adds instead of ``nv^2``.  The
+  blocks between spheres are far from full rank at a low's accuracy: the field of a
+  degree-l density reaches the target's degree-l' harmonics with weight falling like
+  ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is below 1e-3, and
+  even a near-contact block's squeeze coupling has a few dozen significant terms out of
+  241 (measured: docs/mobility.md);
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
 It is built from a high :class:`bim.BimMobility` and shares its set-up (pairs, stored
@@ -32,16 +40,20 @@ symmetrising would double the low's cost.
 Pairs that the high evaluates by direct quadrature rather than a stored block (beyond the
 block budget, from about a hundred spheres at p = 8) stay as they are: the split then
 saves less.  Named ``p<k>f<q>e<j>`` in scene specs and ``lcpbench generate --low``
-(``p8f4e3``: order 8 near contact, degree 4 far field, GMRES 1e-3).
+(``p8f4e3``: order 8 near contact, degree 4 far field, GMRES 1e-3), and
+``p<k>f<q>r<i>e<j>`` with the blocks compressed at ``rank_tol = 1e-i`` (``p8f6r3e3``).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from .bim import BimMobility
 from .bim_adjoint import AdjointPieces
-from .kernels import PARALLEL_WORK, apply_blocks, apply_blocks_serial, dense_rows
+from .kernels import (PARALLEL_WORK, apply_blocks, apply_blocks_serial, apply_lowrank,
+                      apply_lowrank_serial, dense_rows)
 from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
 
 __all__ = ["SplitMobility", "split_mobility", "DEFAULT_NEAR_GAP"]
@@ -50,7 +62,71 @@ DEFAULT_NEAR_GAP = 0.5
 """Pairs whose gap is below this many source radii keep the full near-field block."""
 
 _CHUNK = 64
-"""Blocks truncated at a time (bounds the temporary copy of the stored blocks)."""
+"""Blocks truncated (and factored) at a time: bounds the temporary copies of the blocks."""
+
+
+class _Group(NamedTuple):
+    """Blocks stored dense (of one truncation degree) or factored (of every degree).
+
+    ``blocks`` is ``(K, nv, nv)`` for dense blocks acting on the coefficients ``sel``;
+    factored blocks (``blocks`` None) are ``factors = (first, second, off, rank, length)``
+    in the ragged layout of :func:`kernels.apply_lowrank`, each on the first ``length[k]``
+    coefficients (the coefficients are ordered by degree, so degree <= q is a prefix), and
+    ``sel`` is then every coefficient.  ``ptr`` and ``src`` give the blocks by target
+    sphere, ``order``, ``src_ptr`` and ``tgt`` by source sphere (for the transpose);
+    ``synth`` synthesises ``sel`` onto the grid.
+    """
+
+    blocks: np.ndarray | None
+    factors: tuple | None
+    ptr: np.ndarray
+    src: np.ndarray
+    sel: np.ndarray
+    synth: np.ndarray
+    order: np.ndarray
+    src_ptr: np.ndarray
+    tgt: np.ndarray
+
+    @property
+    def work(self) -> int:
+        """Multiply-adds of one product with these blocks."""
+        if self.blocks is not None:
+            return int(self.blocks.size)
+        return int(2 * self.factors[0].size)
+
+    def _coef(self, coef: np.ndarray) -> np.ndarray:
+        """The coefficients the blocks act on (``sel`` is a prefix of the degree order)."""
+        n = self.sel.size
+        return coef if n == coef.shape[1] else np.ascontiguousarray(coef[:, :n])
+
+    def apply(self, coef: np.ndarray, M: int) -> np.ndarray:
+        """``acc[i] = sum_k E_k coef[src[k], sel]`` over the blocks with target i, (M, |sel|)."""
+        acc = np.zeros((M, self.sel.size))
+        c = self._coef(np.ascontiguousarray(coef))
+        if self.blocks is not None:
+            fn = apply_blocks if self.work > PARALLEL_WORK else apply_blocks_serial
+            fn(self.blocks, self.ptr, self.src, c, acc)
+        else:
+            first, second, off, rank, length = self.factors
+            fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
+            fn(first, second, off, rank, length, self.ptr, np.arange(self.src.size),
+               self.src, c, acc)
+        return acc
+
+    def apply_transpose(self, acc_bar: np.ndarray, M: int) -> np.ndarray:
+        """The transpose of :meth:`apply`: ``part[j] = sum_k E_k' acc_bar[tgt[k]]`` over the
+        blocks with source j, (M, |sel|)."""
+        part = np.zeros((M, self.sel.size))
+        if self.blocks is not None:
+            fn = (apply_blocks_adjoint if self.work > PARALLEL_WORK
+                  else apply_blocks_adjoint_serial)
+            fn(self.blocks, self.src_ptr, self.order, self.tgt, acc_bar, part)
+        else:
+            first, second, off, rank, length = self.factors
+            fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
+            fn(second, first, off, rank, length, self.src_ptr, self.order, self.tgt,
+               acc_bar, part)
+        return part
 
 
 class SplitMobility(BimMobility):
@@ -72,21 +148,25 @@ class SplitMobility(BimMobility):
         Truncation degree -> ordered pairs truncated at it.
     block_work : float
         Multiply-adds of the blocks per product relative to the high's blocks.
+    rank_tol : float or None
+        Relative singular-value cut of the block compression (None: blocks dense).
+    mean_rank : float
+        Mean number of terms kept per factored block (0 when none is factored).
+    n_factored_blocks : int
+        Blocks stored factored (the others are dense: factoring would not save work).
     """
 
     far_degree: int
     near_gap: float
+    rank_tol: float | None
 
     def _apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
         """The split operator: self, unblocked pairs as in the high, full blocks for the
         near pairs and degree-truncated blocks for the far ones."""
         out, coef = self._apply_bie_unblocked(sigma, rung)
         if coef is not None:
-            for blocks, ptr, src, sel, synth, _adj in self._groups:
-                fn = apply_blocks if blocks.size > PARALLEL_WORK else apply_blocks_serial
-                acc = np.zeros((self.M, sel.size))
-                fn(blocks, ptr, src, np.ascontiguousarray(coef[:, sel]), acc)
-                out += dense_rows(acc, synth)
+            for g in self._groups:
+                out += dense_rows(g.apply(coef, self.M), g.synth)
         return out.reshape(-1)
 
     @property
@@ -115,19 +195,16 @@ class _SplitAdjoint(AdjointPieces):
         """Transpose of :meth:`SplitMobility._apply_bie`."""
         out, coef_bar, ob = self.apply_bie_unblocked(w)
         if coef_bar is not None:
-            for blocks, _ptr, _src, sel, synth, (order, src_ptr, tgt) in self.groups:
-                fn = (apply_blocks_adjoint if blocks.size > PARALLEL_WORK
-                      else apply_blocks_adjoint_serial)
-                acc_bar = np.ascontiguousarray(dense_rows(ob, np.ascontiguousarray(synth.T)))
-                part = np.zeros((self.op.M, sel.size))
-                fn(blocks, src_ptr, order, tgt, acc_bar, part)
-                coef_bar[:, sel] += part
+            for g in self.groups:
+                acc_bar = np.ascontiguousarray(dense_rows(ob, np.ascontiguousarray(g.synth.T)))
+                coef_bar[:, g.sel] += g.apply_transpose(acc_bar, self.op.M)
             out += dense_rows(coef_bar, self.analysis)
         return out.reshape(-1)
 
 
 def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
-                   near_gap: float = DEFAULT_NEAR_GAP, decay: float = 0.5) -> SplitMobility:
+                   near_gap: float = DEFAULT_NEAR_GAP, decay: float = 0.5,
+                   rank_tol: float | None = None) -> SplitMobility:
     """The distance-split low fidelity of ``high`` (see the module docstring).
 
     Parameters
@@ -143,12 +220,16 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     decay : float
         How fast the degree falls with distance (see the module docstring): 0 truncates
         every far pair at ``far_degree``, 0.5 is the default.
+    rank_tol : float, optional
+        Compress every kept block to its singular values above ``rank_tol`` times its
+        largest (``1e-3`` for a low accurate to about 1e-3); None keeps the blocks dense.
+        A block is stored factored only when that saves work (rank below half its size).
 
     Raises
     ------
     ValueError
         ``far_degree`` outside ``1..p``, ``near_gap`` or ``decay`` negative, ``eps_gmres``
-        outside (0, 1).
+        or ``rank_tol`` outside (0, 1).
     """
     if isinstance(far_degree, bool) or int(far_degree) != far_degree or not (
             1 <= int(far_degree) <= high.p):
@@ -162,10 +243,19 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     if not (np.isfinite(fall) and fall >= 0):
         raise ValueError(f"decay = {decay!r} must be a number >= 0 (0: every far pair at "
                          "far_degree; 0.5: the default fall of the degree with distance)")
+    if rank_tol is not None:
+        try:
+            cut = float(rank_tol)
+        except (TypeError, ValueError):
+            cut = float("nan")
+        if isinstance(rank_tol, bool) or not (np.isfinite(cut) and 0 < cut < 1):
+            raise ValueError(f"rank_tol = {rank_tol!r} must be a number in (0, 1), the "
+                             "relative singular-value cut of the blocks (e.g. 1e-3), or None")
+        rank_tol = cut
     base = high.at_tolerance(eps_gmres)
     low = SplitMobility.__new__(SplitMobility)
     low.__dict__.update(base.__dict__)
-    low.far_degree, low.near_gap = int(far_degree), gap_limit
+    low.far_degree, low.near_gap, low.rank_tol = int(far_degree), gap_limit, rank_tol
     low._fresh_solvers()                      # its recycled space applies the split operator
     plan, basis = high.plan, high.basis
     tgt, src = plan.block_tgt, plan.block_src
@@ -177,29 +267,73 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     ratio = (np.log(reach[far]) / np.log(dist[far])) ** fall
     degree[far] = np.clip(np.ceil((low.far_degree + 1) * ratio - 1e-9) - 1, 1, low.far_degree)
     low._groups = []
-    work = 0
-    for q in np.unique(degree):
-        idx = np.nonzero(degree == q)[0]                         # still sorted by target
-        ptr = np.searchsorted(tgt[idx], np.arange(high.M + 1)).astype(np.int64)
-        # the stored blocks are in coefficients on both sides (bim_pairs): a near pair keeps
-        # its block, a far one keeps the rows and columns of degree <= q
-        sel = np.arange(basis.degree.size) if q < 0 else np.nonzero(basis.degree <= q)[0]
-        if q < 0:
-            blocks = np.ascontiguousarray(plan.blocks[idx])
-        else:
-            blocks = np.empty((idx.size, sel.size, sel.size))
-            for k0 in range(0, idx.size, _CHUNK):
-                part = idx[k0:k0 + _CHUNK]
-                blocks[k0:k0 + part.size] = plan.blocks[part][:, sel][:, :, sel]
-        synth = np.ascontiguousarray(basis.B[:, sel].T)
-        order = np.argsort(src[idx], kind="stable").astype(np.int64)    # for the transpose
-        src_ptr = np.searchsorted(src[idx][order], np.arange(high.M + 1)).astype(np.int64)
-        low._groups.append((blocks, ptr, np.ascontiguousarray(src[idx]), sel, synth,
-                            (order, src_ptr, np.ascontiguousarray(tgt[idx]))))
-        work += blocks.size
+    if rank_tol is None:
+        for q in np.unique(degree):
+            idx = np.nonzero(degree == q)[0]                     # still sorted by target
+            # the stored blocks are in coefficients on both sides (bim_pairs): a near pair
+            # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
+            # the coefficients are ordered by degree)
+            n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
+            if q < 0:
+                blocks = np.ascontiguousarray(plan.blocks[idx])
+            else:
+                blocks = np.empty((idx.size, n_q, n_q))
+                for k0 in range(0, idx.size, _CHUNK):
+                    blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
+            low._groups.append(_group(blocks, None, idx, tgt, src, high.M, n_q, basis))
+        low.n_factored_blocks, low.mean_rank = 0, 0.0
+    else:
+        length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
+                           for q in degree], dtype=np.int64)
+        factors = _factor(plan.blocks, length, rank_tol)
+        low._groups.append(_group(None, factors, np.arange(tgt.size), tgt, src, high.M,
+                                  basis.degree.size, basis))
+        low.n_factored_blocks = int(tgt.size)
+        low.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
     low.n_full_pairs = int((degree < 0).sum())
     low.n_truncated_pairs = int(far.sum())
     low.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
-    low.block_work = work / max(plan.blocks.size, 1)
+    low.block_work = sum(g.work for g in low._groups) / max(plan.blocks.size, 1)
     low._pieces = None                        # its own transposed pieces, built on first use
     return low
+
+
+def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
+           tgt: np.ndarray, src: np.ndarray, M: int, n_coef: int, basis) -> _Group:
+    """The :class:`_Group` of the pairs ``idx`` (sorted by target) of the high's plan, acting
+    on the first ``n_coef`` coefficients."""
+    t, s = tgt[idx], np.ascontiguousarray(src[idx])
+    ptr = np.searchsorted(t, np.arange(M + 1)).astype(np.int64)
+    order = np.argsort(s, kind="stable").astype(np.int64)            # for the transpose
+    src_ptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int64)
+    return _Group(blocks, factors, ptr, s, np.arange(n_coef),
+                  np.ascontiguousarray(basis.B[:, :n_coef].T), order, src_ptr,
+                  np.ascontiguousarray(t))
+
+
+def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
+    """Block k's leading ``length[k] x length[k]`` part by its singular value decomposition,
+    cut at ``rank_tol`` times its largest singular value, in the ragged layout of
+    :func:`kernels.apply_lowrank`: ``(first, second, off, rank, length)``, ``first`` the
+    rows of ``V'`` and ``second`` those of ``(U S)'``."""
+    K = blocks.shape[0]
+    rank = np.zeros(K, dtype=np.int64)
+    firsts, seconds = [], []
+    for L in np.unique(length):
+        idx = np.nonzero(length == L)[0]
+        for k0 in range(0, idx.size, _CHUNK):
+            part = idx[k0:k0 + _CHUNK]
+            U, S, Vt = np.linalg.svd(blocks[part, :L, :L])
+            for j, k in enumerate(part):
+                r = int((S[j] > rank_tol * S[j, 0]).sum())
+                rank[k] = r
+                firsts.append((k, Vt[j, :r].ravel()))
+                seconds.append((k, (U[j, :, :r] * S[j, :r]).T.ravel()))
+    # flat storage in block order (the kernel reads block k at off[k])
+    firsts.sort(key=lambda t: t[0])
+    seconds.sort(key=lambda t: t[0])
+    sizes = rank * length
+    off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    first = np.concatenate([f for _k, f in firsts]) if K else np.zeros(0)
+    second = np.concatenate([f for _k, f in seconds]) if K else np.zeros(0)
+    return first, second, off, rank, length

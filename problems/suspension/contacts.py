@@ -207,7 +207,7 @@ def self_mobility(centers, radii, mu: float = 1.0) -> LinearOperator:
     return aslinearoperator(sp.diags(diag))
 
 
-_FIDELITY = re.compile(r"^p(\d+)(?:f(\d+))?(?:e(\d+))?$")
+_FIDELITY = re.compile(r"^p(\d+)(?:f(\d+))?(?:r(\d+))?(?:e(\d+))?$")
 
 
 def parse_fidelity(name: str, p: int, eps_gmres: float) -> dict:
@@ -221,22 +221,24 @@ def parse_fidelity(name: str, p: int, eps_gmres: float) -> dict:
         ``k``), ``"p<k>e<j>"`` (order ``k``, GMRES tolerance ``1e-j``), e.g.
         ``p4e6`` for the paper's low fidelity ``p = 4, eps = 1e-6``, or
         ``"p<k>f<q>e<j>"``: order ``k`` near contact with the far field truncated at
-        degree ``q`` (:mod:`.bim_split`), e.g. ``p8f4e3``.
+        degree ``q`` (:mod:`.bim_split`), e.g. ``p8f4e3``, and ``"p<k>f<q>r<i>e<j>"``
+        with its blocks compressed to the singular values above ``1e-i`` of each block's
+        largest, e.g. ``p8f6r3e3``.
     p, eps_gmres
         The defaults for the parts the name leaves open.
 
     Returns
     -------
     dict
-        ``{"model": ..., "p": ..., "eps_gmres": ...}``, and ``"far_degree"`` for a
-        distance-split fidelity.
+        ``{"model": ..., "p": ..., "eps_gmres": ...}``, and ``"far_degree"`` (and
+        ``"rank_tol"`` when compressed) for a distance-split fidelity.
     """
     key = str(name).strip().lower()
     if key in ("rpy", "self", "bim"):
         return {"model": key, "p": int(p), "eps_gmres": float(eps_gmres)}
     m = _FIDELITY.match(key)
     if m:
-        eps = float(f"1e-{m.group(3)}") if m.group(3) else float(eps_gmres)
+        eps = float(f"1e-{m.group(4)}") if m.group(4) else float(eps_gmres)
         out = {"model": "bim", "p": int(m.group(1)), "eps_gmres": eps}
         if m.group(2) is not None:
             q = int(m.group(2))
@@ -244,10 +246,21 @@ def parse_fidelity(name: str, p: int, eps_gmres: float) -> dict:
                 raise ValueError(f"fidelity {name!r}: the far-field degree {q} must be between "
                                  f"1 and the order {out['p']}, e.g. p8f4e3")
             out["far_degree"] = q
+        if m.group(3) is not None:
+            if m.group(2) is None:
+                raise ValueError(f"fidelity {name!r}: block compression r<i> belongs to a "
+                                 "distance-split fidelity; give its far-field degree too, "
+                                 "e.g. p8f6r3e3")
+            i = int(m.group(3))
+            if i < 1:
+                raise ValueError(f"fidelity {name!r}: the compression r{i} must cut at 1e-1 "
+                                 "or below, e.g. r3 for 1e-3")
+            out["rank_tol"] = float(f"1e-{i}")
         return out
     raise ValueError(f"unknown fidelity {name!r}; use rpy, self, bim, p<k> (boundary integral "
                      "at order k), p<k>e<j> (order k, GMRES tolerance 1e-j), e.g. p4e6, or "
-                     "p<k>f<q>e<j> (far field truncated at degree q), e.g. p8f4e3")
+                     "p<k>f<q>e<j> (far field truncated at degree q), e.g. p8f4e3, or "
+                     "p<k>f<q>r<i>e<j> (its blocks compressed at 1e-i), e.g. p8f6r3e3")
 
 
 def resolve_mobility(centers, radii, model: MobilityModel = "rpy", p: int = 8,
@@ -515,7 +528,8 @@ def _low_mobility(high: LinearOperator, spec: dict, c: np.ndarray, r: np.ndarray
         from .bim_split import split_mobility
 
         base = high if same else resolve_mobility(c, r, "bim", spec["p"], spec["eps_gmres"], mu)
-        return split_mobility(base, spec["far_degree"], spec["eps_gmres"])
+        return split_mobility(base, spec["far_degree"], spec["eps_gmres"],
+                              rank_tol=spec.get("rank_tol"))
     if same:
         return high.at_tolerance(spec["eps_gmres"])
     return resolve_mobility(c, r, spec["model"], spec["p"], spec["eps_gmres"], mu)

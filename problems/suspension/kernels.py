@@ -4,7 +4,8 @@ The traction on target points of exterior expansions (:func:`traction_expansion`
 point forces (:func:`direct_traction_ranges` and its builds), the Faxen read-off of the
 rigid velocities (:func:`center_readout`), the near-field block responses
 (:func:`traction_response`) and the small dense per-sphere products of every product
-(:func:`dense_rows`, :func:`apply_blocks`, :func:`synthesize_forces`).  Their exact
+(:func:`dense_rows`, :func:`apply_blocks`, :func:`apply_lowrank`,
+:func:`synthesize_forces`).  Their exact
 transposes are in :mod:`kernels_adjoint`; the solid harmonics and the unit-sphere field
 they share are in :mod:`harmonics`.
 """
@@ -19,7 +20,8 @@ from .harmonics import (cross_gradient, derivatives, field_buffers, solid_harmon
 
 __all__ = ["PARALLEL_WORK", "point_force_weight", "traction_expansion", "center_readout",
            "traction_response", "direct_traction_ranges", "direct_traction_ranges_serial",
-           "direct_traction_skip", "dense_rows", "apply_blocks", "apply_blocks_serial",
+           "direct_traction_skip", "dense_rows", "apply_blocks", "apply_blocks_serial", "apply_lowrank",
+           "apply_lowrank_serial",
            "real_block_columns",
            "synthesize_forces", "synthesize_forces_serial"]
 
@@ -272,6 +274,40 @@ def _apply_blocks_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray, coef
             out[i, a] += acc[a]
 
 
+def _apply_lowrank_impl(first: np.ndarray, second: np.ndarray, off: np.ndarray,
+                        rank: np.ndarray, length: np.ndarray, ptr: np.ndarray,
+                        blk: np.ndarray, inp: np.ndarray, coef: np.ndarray,
+                        out: np.ndarray) -> None:
+    """Products with blocks stored as sums of rank-one terms.
+
+    Block k acts on the first ``L = length[k]`` coefficients and is
+    ``sum_a u_a v_a'`` over ``a < rank[k]``, with ``v_a = first[o : o + L]`` and
+    ``u_a = second[o : o + L]``, ``o = off[k] + a L`` (ragged rows, flat storage).  Adds
+    ``out[i, :L] += sum_a u_a (v_a . coef[inp[k], :L])`` over the blocks ``k = blk[kk]``,
+    ``kk`` in ``range(ptr[i], ptr[i+1])``.  With ``first = v`` and ``second = u``, blocks
+    sorted by target, this is :func:`apply_blocks` of the factored blocks; with the two
+    swapped and the blocks taken by source, it is its transpose."""
+    M = ptr.size - 1
+    nv = coef.shape[1]
+    for i in prange(M):
+        acc = np.zeros(nv)
+        for kk in range(ptr[i], ptr[i + 1]):
+            k = blk[kk]
+            c = coef[inp[k]]
+            L = length[k]
+            for a in range(rank[k]):
+                o = off[k] + a * L
+                v = first[o:o + L]              # contiguous views: the loops vectorise
+                u = second[o:o + L]             # (measured 5x faster than flat indexing)
+                s = 0.0
+                for b in range(L):
+                    s += v[b] * c[b]
+                for b in range(L):
+                    acc[b] += s * u[b]
+        for b in range(nv):
+            out[i, b] += acc[b]
+
+
 def _synthesize_forces_impl(coef: np.ndarray, spheres: np.ndarray, BT: np.ndarray,
                       scale: np.ndarray, base: int, fx: np.ndarray, fy: np.ndarray,
                       fz: np.ndarray) -> None:
@@ -299,6 +335,8 @@ def _synthesize_forces_impl(coef: np.ndarray, spheres: np.ndarray, BT: np.ndarra
 # Parallel and serial builds of the same loops (see PARALLEL_WORK).
 apply_blocks = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_impl)
 apply_blocks_serial = njit(fastmath=True, cache=True)(_apply_blocks_impl)
+apply_lowrank = njit(parallel=True, fastmath=True, cache=True)(_apply_lowrank_impl)
+apply_lowrank_serial = njit(fastmath=True, cache=True)(_apply_lowrank_impl)
 synthesize_forces = njit(parallel=True, fastmath=True, cache=True)(_synthesize_forces_impl)
 synthesize_forces_serial = njit(fastmath=True, cache=True)(_synthesize_forces_impl)
 direct_traction_ranges = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_ranges_impl)
