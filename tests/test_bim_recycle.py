@@ -119,3 +119,58 @@ def test_symmetrised_contact_operator_uses_the_paired_product():
     f = D @ v
     expect = D.T @ (0.5 * (ref @ f + ref.rmatvec(f)))
     assert np.abs(Av - expect).max() <= 1e-8 * np.abs(expect).max()
+
+
+def test_cold_products_start_empty_and_keep_the_directions():
+    """Inside ``cold_products`` a product costs what a configuration's first product costs
+    (no recycled directions); afterwards the kept directions are back."""
+    c = _cluster()
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-10)
+    x = np.linspace(1.0, 2.0, 24)
+    u = A @ x
+    first = A.gmres_iterations[-1]
+    A @ x[::-1].copy()
+    assert A.gmres_iterations[-1] < first                         # recycled: cheaper
+    kept = A._recycler.size
+    with A.cold_products():
+        u_cold = A @ x
+        assert A.gmres_iterations[-1] == first                    # as the first product
+        assert A._recycler.size == first
+    assert A._recycler.size == kept                               # directions put back
+    assert np.abs(u_cold - u).max() <= 1e-8 * np.abs(u).max()
+    A @ x
+    assert A.gmres_iterations[-1] <= 1                            # x's directions are kept
+
+
+def test_measure_cost_times_every_repeat_cold_on_a_new_vector():
+    """A cheap operator is timed on several products: each inside its own ``cold()``
+    context, each on a different positive vector (no product served from memory)."""
+    from contextlib import contextmanager
+
+    from scipy.sparse.linalg import LinearOperator
+
+    from lcpbench.core.operator import Operator, measure_cost
+
+    seen, state = [], {"cold": 0, "inside": False}
+
+    def mv(v):
+        seen.append((np.array(v, dtype=float).ravel(), state["inside"]))
+        return 2.0 * np.asarray(v, dtype=float)
+
+    @contextmanager
+    def cold():
+        state["cold"] += 1
+        state["inside"] = True
+        try:
+            yield
+        finally:
+            state["inside"] = False
+
+    op = Operator(LinearOperator((5, 5), matvec=mv, dtype=float), name="cheap")
+    t = measure_cost(op, min_seconds=10.0, max_reps=7, cold=cold)
+    assert t > 0 and len(seen) == 7 and state["cold"] == 7
+    assert all(inside for _v, inside in seen)
+    vs = np.array([v for v, _ in seen])
+    assert (vs > 0).all()
+    assert len({tuple(np.round(v, 12)) for v in vs}) == 7          # all different
+    assert op.count == 0                                             # uncounted

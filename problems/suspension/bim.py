@@ -74,9 +74,11 @@ truth near contact.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import warnings
 import weakref
+from typing import Iterator
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
@@ -272,6 +274,8 @@ class BimMobility(TransposedProducts, LinearOperator):
         self.readout = self.self_ops.readout @ self.self_ops.S     # (6, 3N) unit sphere
         self.basis = vsh_basis(self.p)
         self._analysis_T = np.ascontiguousarray(self.basis.A.T)
+        # coefficients of the preconditioned density P y in one product: y @ P' A'
+        self._precond_analysis_T = np.ascontiguousarray(self._precond_T @ self._analysis_T)
         q_near = max(self.p, int(np.ceil(up * self.p - 1e-9)))
         self._near_grid = sphere_grid(q_near)
         self._near_proj = (None if q_near == self.p           # plain node sampling
@@ -281,18 +285,36 @@ class BimMobility(TransposedProducts, LinearOperator):
         self.recycle = default_capacity(n) if recycle is None else max(int(recycle), 0)
         self._fresh_solvers()
 
-    def _fresh_solvers(self) -> None:
-        """New (empty) recycled spaces and empty iteration and residual records."""
+    def _new_recyclers(self) -> tuple:
+        """Empty recycled spaces for the forward and the transposed equation (None, None
+        without recycling)."""
         n, cap = self.M * 3 * self._N, self.recycle
+        if not cap:
+            return None, None
         # the solvers reach this operator through a weak reference: a strong one would make
         # a reference cycle, and the blocks and kept directions of every configuration would
         # wait for Python's cyclic collector (measured: +20-70 MB per time step, until a
         # 27-sphere simulation was killed for want of memory after 80 steps)
         me = weakref.ref(self)
-        self._recycler = (RecycledGCR(lambda v: me()._apply_bie(me()._precondition(v)), n, cap)
-                          if cap else None)
-        self._adj_recycler = (RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap)
-                              if cap else None)
+        return (RecycledGCR(lambda v: me()._apply_preconditioned(v), n, cap),
+                RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap))
+
+    @contextlib.contextmanager
+    def cold_products(self) -> Iterator[None]:
+        """Products made inside start from empty recycled spaces, as the first product of
+        a configuration does; the kept directions are put back afterwards.  For timing one
+        product at its first-product cost (:func:`lcpbench.core.operator.measure_cost`):
+        with recycling every later product needs fewer new directions."""
+        saved = self._recycler, self._adj_recycler
+        self._recycler, self._adj_recycler = self._new_recyclers()
+        try:
+            yield
+        finally:
+            self._recycler, self._adj_recycler = saved
+
+    def _fresh_solvers(self) -> None:
+        """New (empty) recycled spaces and empty iteration and residual records."""
+        self._recycler, self._adj_recycler = self._new_recyclers()
         self.gmres_iterations: list[int] = []
         self.residuals: list[float] = []
         self.adjoint_iterations: list[int] = []
@@ -361,22 +383,57 @@ class BimMobility(TransposedProducts, LinearOperator):
         """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities, with the
         quadrature between spheres accurate to ``tolerance_ladder[rung]``."""
         out, coef = self._apply_bie_unblocked(sigma, rung)
-        plan = self.plan
-        if coef is not None and plan.n_block_pairs:
-            fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
-            acc = np.zeros((self.M, plan.blocks.shape[1]))
-            fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc)
-            out += dense_rows(acc, plan.block_synth)
+        if coef is not None:
+            out += self._block_part(coef)
         return out.reshape(-1)
 
-    def _apply_bie_unblocked(self, sigma: np.ndarray, rung: int = 0
+    def _apply_preconditioned(self, y: np.ndarray, rung: int = 0) -> np.ndarray:
+        """The preconditioned operator ``G y = _apply_bie(P y)`` that GMRES solves with.
+
+        ``P`` is the inverse of the one-sphere operator, so the self part of ``G`` is the
+        identity: ``G y = y + sum_j T_ij (P y)_j``, one per-sphere product fewer than
+        applying the self operator to ``P y``; when every pair has a stored block the
+        blocks need only the coefficients of ``P y``, one product with ``P' A'`` (the
+        same values to rounding)."""
+        out, coef = self._preconditioned_unblocked(y, rung)
+        if coef is not None:
+            out += self._block_part(coef)
+        return out.reshape(-1)
+
+    def _preconditioned_unblocked(self, y: np.ndarray, rung: int = 0
+                                  ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`_apply_preconditioned` without the stored blocks: ``(out, coef)`` as
+        :meth:`_apply_bie_unblocked` gives them for ``P y``."""
+        M, N, plan = self.M, self._N, self.plan
+        x = np.ascontiguousarray(y.reshape(M, 3 * N))
+        if M == 1:
+            return x.copy(), None
+        if plan.fly_idx.size or plan.flyn_idx.size or plan.n_src:
+            out, coef = self._apply_bie_unblocked(dense_rows(x, self._precond_T), rung,
+                                                  self_part=False)
+            return out + x, coef
+        return x.copy(), dense_rows(x, self._precond_analysis_T)
+
+    def _block_part(self, coef: np.ndarray) -> np.ndarray:
+        """The stored near blocks applied to the VSH coefficients ``coef``, on the grid
+        ``(M, 3N)`` (zeros when no pair has a block)."""
+        plan = self.plan
+        if not plan.n_block_pairs:
+            return np.zeros((self.M, 3 * self._N))
+        fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
+        acc = np.zeros((self.M, plan.blocks.shape[1]))
+        fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc)
+        return dense_rows(acc, plan.block_synth)
+
+    def _apply_bie_unblocked(self, sigma: np.ndarray, rung: int = 0, self_part: bool = True
                              ) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`_apply_bie` without the stored near blocks: ``(out, coef)`` with ``out``
-        of shape ``(M, 3N)`` and ``coef`` the VSH coefficients the blocks act on (None for
-        one sphere)."""
+        """:meth:`_apply_bie` without the stored near blocks (and without the one-sphere
+        operator when ``self_part`` is False): ``(out, coef)`` with ``out`` of shape
+        ``(M, 3N)`` and ``coef`` the VSH coefficients the blocks act on (None for one
+        sphere)."""
         M, N, p, plan = self.M, self._N, self.p, self.plan
         s = np.ascontiguousarray(sigma.reshape(M, 3 * N))
-        out = dense_rows(s, self._self_block)
+        out = dense_rows(s, self._self_block) if self_part else np.zeros((M, 3 * N))
         coef = None
         if M > 1:
             coef = dense_rows(s, self._analysis_T)
@@ -468,7 +525,7 @@ class BimMobility(TransposedProducts, LinearOperator):
                                                            self.gmres_iterations,
                                                            self.residuals))
         y0 = self._unprecondition(self._precondition(b))
-        y = self._solve("BIM GMRES", lambda v, k: self._apply_bie(self._precondition(v), k),
+        y = self._solve("BIM GMRES", lambda v, k: self._apply_preconditioned(v, k),
                         b, y0, len(self.plan.dir_ranges), self.gmres_iterations,
                         self.residuals)
         return self._precondition(y)

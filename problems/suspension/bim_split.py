@@ -160,14 +160,14 @@ class SplitMobility(BimMobility):
     near_gap: float
     rank_tol: float | None
 
-    def _apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
-        """The split operator: self, unblocked pairs as in the high, full blocks for the
-        near pairs and degree-truncated blocks for the far ones."""
-        out, coef = self._apply_bie_unblocked(sigma, rung)
-        if coef is not None:
-            for g in self._groups:
-                out += dense_rows(g.apply(coef, self.M), g.synth)
-        return out.reshape(-1)
+    def _block_part(self, coef: np.ndarray) -> np.ndarray:
+        """The split blocks (the products of the split operator use them in place of the
+        high's stored blocks: self and unblocked pairs as in the high, full blocks for
+        the near pairs, degree-truncated ones for the far pairs), on the grid."""
+        out = np.zeros((self.M, 3 * self._N))
+        for g in self._groups:
+            out += dense_rows(g.apply(coef, self.M), g.synth)
+        return out
 
     @property
     def adjoint_pieces(self) -> AdjointPieces:
@@ -179,8 +179,7 @@ class SplitMobility(BimMobility):
     def _apply_pair(self, u_f: np.ndarray, u_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``G u_f`` and ``G' u_a`` of the split operator (no fused pass: its blocks differ
         from the stored ones the fused kernel reads)."""
-        return (self._apply_bie(self._precondition(u_f)),
-                self.adjoint_pieces.operator(u_a))
+        return (self._apply_preconditioned(u_f), self.adjoint_pieces.operator(u_a))
 
 
 class _SplitAdjoint(AdjointPieces):

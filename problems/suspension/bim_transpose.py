@@ -33,7 +33,7 @@ class TransposedProducts:
         accuracy) with one pass over the stored near blocks, which bound the cost of a
         product by memory traffic when they are many."""
         pieces = self.adjoint_pieces
-        out, coef = self._apply_bie_unblocked(self._precondition(u_f))
+        out, coef = self._preconditioned_unblocked(u_f)
         out_a, coef_bar, ob = pieces.apply_bie_unblocked(u_a)
         plan = self.plan
         if coef is not None and coef_bar is not None:

@@ -489,10 +489,11 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
     dmd = _DMD(contacts.D, mob, symmetrize=sym)
     lows = _low_models(low, p, eps_gmres)
     high = Operator(dmd.operator(), name="high")
-    low_ops = {}
+    low_ops, low_mobs = {}, {}
     Dt = contacts.D.T.tocsr()
     for key, spec in lows.items():
         lm = _low_mobility(mob, spec, c, r, p if model == "bim" else None, mu)
+        low_mobs[key] = lm
         lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
         if "far_degree" in spec:
             lsym = False               # one solve per product (bim_split: why that is enough)
@@ -503,10 +504,12 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         low_ops[key] = Operator(LinearOperator((contacts.n, contacts.n), dtype=np.float64,
                                                matvec=mv), name=key)
     if low_ops and contacts.n:
-        # the paper recomputes the cost ratio at every time step: time one product each
-        high = Operator(high, cost=measure_cost(high), name="high")
+        # the paper recomputes the cost ratio at every time step: time one product of each,
+        # at the cost of a first product (measure_cost with cold: no recycled directions)
+        high = Operator(high, cost=measure_cost(high, cold=_cold(mob)), name="high")
         setup += 1
-        low_ops = {k: Operator(op, cost=measure_cost(op), name=k) for k, op in low_ops.items()}
+        low_ops = {k: Operator(op, cost=measure_cost(op, cold=_cold(low_mobs[k])), name=k)
+                   for k, op in low_ops.items()}
     info = dict(meta or {})
     info.update(M=M, n=contacts.n, dt=dt, delta=float(delta), separation=separation, mu=mu,
                 model=model if isinstance(model, str) else getattr(model, "__name__", "custom"),
@@ -517,6 +520,12 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)
     lcp = LCP(high, b, x0=x0, low=low_ops, name=name, meta=info)
     return ContactProblem(contacts, mob, U_nc, lcp, dmd, setup)
+
+
+def _cold(mob: LinearOperator):
+    """The mobility's :meth:`~.bim.BimMobility.cold_products` when it keeps state between
+    products (recycled Krylov directions), else None (RPY and the one-sphere model do not)."""
+    return getattr(mob, "cold_products", None)
 
 
 def _low_mobility(high: LinearOperator, spec: dict, c: np.ndarray, r: np.ndarray,
