@@ -33,7 +33,9 @@ def add_generate_parser(sub) -> None:
                         "simulated, not stored)")
     p.add_argument("--low", action="append", default=[], metavar="FIDELITY",
                    help="low fidelity to store, repeatable: p=3,4 (orders, at each --eps), "
-                        "rpy, self, p4e6")
+                        "rpy, self, p4e6, the distance-split p8f6e3 (order 8 near contact, "
+                        "far field degree 6, GMRES 1e-3) or p8f6r3e3 (its blocks compressed "
+                        "at 1e-3)")
     p.add_argument("--eps", default="", metavar="E1,E2",
                    help="GMRES tolerances of the p= fidelities, e.g. 1e-6,1e-8 (names p4e6, "
                         "p4e8; default the scene's eps_gmres, names p4)")

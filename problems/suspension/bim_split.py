@@ -25,12 +25,14 @@ fidelity's own discretisation near contact and makes the rest cheap:
   blocks between spheres are far from full rank at a low's accuracy: the field of a
   degree-l density reaches the target's degree-l' harmonics with weight falling like
   ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is below 1e-3, and
-  even a near-contact block's squeeze coupling has a few dozen significant terms out of
-  241 (measured: docs/mobility.md);
+  even a near-contact block keeps about 77 of its 241 terms at 1e-3 (measured:
+  docs/mobility.md);
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
 It is built from a high :class:`bim.BimMobility` and shares its set-up (pairs, stored
-blocks, self operators, preconditioner); only the truncated far blocks are new.  Its
+blocks, self operators, preconditioner); only the truncated far blocks are new (and, when
+compressed, their singular value decompositions: about a fifth of the high's set-up time
+on 27 and 64 packed spheres, docs/mobility.md).  Its
 transpose is exact (``M.T @ y``: the same pieces transposed, the truncated blocks by the
 compiled block-transpose kernel), but the contact operators of lcpbench use this low
 unsymmetrised, ``D' M D``, with one forward solve per product: the discrete mobility's own

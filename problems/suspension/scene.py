@@ -84,7 +84,9 @@ class LatticeParams(CheckedParams):
     mu : float
         Viscosity.
     low : list of str
-        Low-fidelity operators per LCP (``rpy``, ``self``, ``p4``, ``p4e6``, ...).
+        Low-fidelity operators per LCP (``rpy``, ``self``, ``p4``, ``p4e6``, the
+        distance-split ``p8f6e3`` and its compressed ``p8f6r3e3``, ...;
+        :func:`.contacts.parse_fidelity`).
     force : float
         Free-sphere drift speed of the centroid pull (length / time).
     torque : float
