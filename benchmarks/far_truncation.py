@@ -11,11 +11,11 @@ degree, GMRES at ``--eps``) is built on the high fidelity's set-up for every ``-
 ``--near-gap``, with the degree falling with distance (``decay``, the default of the
 ``p8f<q>e<j>`` fidelities) and without (every far pair at q), with its blocks dense and, for
 every ``--rank-tol``, compressed to their singular values above that fraction of each
-block's largest (``p8f<q>r<i>e<j>``). The script forms each low
-densely and prints its relative 2-norm error against the high contact matrix, its GMRES
-products in one cold product against the high's, and its block work per product relative to
-the high's; their product bounds the cost ratio when the blocks are most of the work
-(``benchmarks/low_fidelity.py`` measures the cost ratio itself).
+block's largest (``p8f<q>r<i>e<j>``). The script forms each low densely and prints its
+relative 2-norm error against the high contact matrix, its GMRES products in one cold
+product against the high's, and its block work per product relative to the high's; their product bounds the cost ratio when the blocks are most of the work
+(``benchmarks/low_fidelity.py`` measures the cost ratio itself); then, for every
+compressed low, the terms kept per block by block size.
 """
 
 from __future__ import annotations
@@ -58,6 +58,7 @@ def main() -> None:
     print("| q | degree | near gap | eps | rank cut | rel. 2-norm error | products cold | "
           "block work | bound |")
     print("|---|---|---|---|---|---|---|---|---|")
+    kept = []
     for q in args.q:
         for decay in args.decay:
             for g in args.near_gap:
@@ -75,6 +76,16 @@ def main() -> None:
                               f"{'-' if cut is None else f'{cut:g}'} | "
                               f"{err:.3g} | {its} | {low.block_work:.3f} | "
                               f"{its / its_high * low.block_work:.3f} |", flush=True)
+                        if cut is not None:
+                            kept.append((q, decay, g, cut, low))
+    # terms kept per block by block size (coefficients the block acts on) of every cut
+    for q, decay, g, cut, low in kept:
+        print(f"\nq = {q}, decay {decay:g}, near gap {g:g}, rank cut {cut:g}: terms kept per block")
+        print("| block size | blocks | terms kept (median) | range |")
+        print("|---|---|---|---|")
+        for size in np.unique(low.block_sizes):
+            r = low.block_ranks[low.block_sizes == size]
+            print(f"| {size} | {r.size} | {np.median(r):.0f} | {r.min()}-{r.max()} |")
 
 
 if __name__ == "__main__":

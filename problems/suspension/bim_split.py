@@ -155,7 +155,10 @@ class SplitMobility(BimMobility):
     mean_rank : float
         Mean number of terms kept per factored block (0 when none is factored).
     n_factored_blocks : int
-        Blocks stored factored (the others are dense: factoring would not save work).
+        Blocks stored factored (all of them when ``rank_tol`` is given, else 0).
+    block_sizes, block_ranks : ndarray or None
+        Per block of the high's plan (its order), the coefficients it acts on and the terms
+        kept (None without compression).
     """
 
     far_degree: int
@@ -283,6 +286,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
                     blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
             low._groups.append(_group(blocks, None, idx, tgt, src, high.M, n_q, basis))
         low.n_factored_blocks, low.mean_rank = 0, 0.0
+        low.block_sizes = low.block_ranks = None
     else:
         length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
                            for q in degree], dtype=np.int64)
@@ -291,6 +295,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
                                   basis.degree.size, basis))
         low.n_factored_blocks = int(tgt.size)
         low.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
+        low.block_sizes, low.block_ranks = length, factors[3]
     low.n_full_pairs = int((degree < 0).sum())
     low.n_truncated_pairs = int(far.sum())
     low.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
