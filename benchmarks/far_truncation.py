@@ -13,9 +13,10 @@ degree, GMRES at ``--eps``) is built on the high fidelity's set-up for every ``-
 every ``--rank-tol``, compressed to their singular values above that fraction of each
 block's largest (``p8f<q>r<i>e<j>``). The script forms each low densely and prints its
 relative 2-norm error against the high contact matrix, its GMRES products in one cold
-product against the high's, and its block work per product relative to the high's; their product bounds the cost ratio when the blocks are most of the work
-(``benchmarks/low_fidelity.py`` measures the cost ratio itself); then, for every
-compressed low, the terms kept per block by block size.
+product against the high's, and its block work per product relative to the high's; their
+product bounds the cost ratio when the blocks are most of the work
+(``benchmarks/low_fidelity.py`` measures the cost ratio itself); then, for every compressed
+low, the terms kept per block by block size.
 """
 
 from __future__ import annotations
