@@ -377,6 +377,29 @@ def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
     assert np.abs(ua - ub).max() <= 1e-10 * np.abs(ua).max()    # ... the velocities do not
 
 
+def test_preconditioned_operator_drops_only_the_identity_self_part():
+    """GMRES's operator ``G y`` adds ``y`` for the self part (the one-sphere preconditioner
+    inverts it exactly) and, with every pair blocked, reads the coefficients of ``P y`` in
+    one product: the same values as applying the whole operator to ``P y``, whether the
+    pairs are blocked, on the fly or summed directly."""
+    c = _random_cluster(5, 5, 6.0)
+    y = np.random.default_rng(8).standard_normal(5 * 3 * sphere_grid(4).size)
+    for kw, blocked in (({}, True), ({"near_block_mb": 0}, False)):
+        A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, **kw)
+        plan = A.plan
+        assert (A.n_block_pairs == 20) == blocked
+        assert bool(plan.fly_idx.size or plan.flyn_idx.size or plan.n_src) != blocked
+        ref = A._apply_bie(A._precondition(y))
+        got = A._apply_preconditioned(y)
+        assert np.abs(got - ref).max() <= 1e-11 * np.abs(ref).max()
+        # the interactions are really there: G is not the identity
+        assert np.abs(got - y).max() > 1e-3 * np.abs(y).max()
+    one = BimMobility(np.zeros((1, 3)), 1.0, p=4)
+    y1 = y[:3 * sphere_grid(4).size]
+    assert np.allclose(one._apply_preconditioned(y1), one._apply_bie(one._precondition(y1)),
+                       rtol=1e-11, atol=1e-12)
+
+
 def test_near_upsample_is_checked():
     with pytest.raises(ValueError, match="near_upsample"):
         BimMobility(np.zeros((1, 3)), 1.0, p=3, near_upsample=0)
