@@ -227,7 +227,9 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
     rank_tol : float, optional
         Compress every kept block to its singular values above ``rank_tol`` times its
         largest (``1e-3`` for a low accurate to about 1e-3); None keeps the blocks dense.
-        A block is stored factored only when that saves work (rank below half its size).
+        Every block is stored factored: a cut that keeps more than half of a block's
+        terms makes that block dearer than dense (at 1e-3 a near block keeps about a
+        third).
 
     Raises
     ------
@@ -324,7 +326,8 @@ def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
     rows of ``V'`` and ``second`` those of ``(U S)'``."""
     K = blocks.shape[0]
     rank = np.zeros(K, dtype=np.int64)
-    firsts, seconds = [], []
+    firsts: list = [np.zeros(0)] * K              # block k's rows, stored in block order
+    seconds: list = [np.zeros(0)] * K
     for L in np.unique(length):
         idx = np.nonzero(length == L)[0]
         for k0 in range(0, idx.size, _CHUNK):
@@ -333,13 +336,9 @@ def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
             for j, k in enumerate(part):
                 r = int((S[j] > rank_tol * S[j, 0]).sum())
                 rank[k] = r
-                firsts.append((k, Vt[j, :r].ravel()))
-                seconds.append((k, (U[j, :, :r] * S[j, :r]).T.ravel()))
-    # flat storage in block order (the kernel reads block k at off[k])
-    firsts.sort(key=lambda t: t[0])
-    seconds.sort(key=lambda t: t[0])
-    sizes = rank * length
-    off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    first = np.concatenate([f for _k, f in firsts]) if K else np.zeros(0)
-    second = np.concatenate([f for _k, f in seconds]) if K else np.zeros(0)
+                firsts[k] = Vt[j, :r].ravel()
+                seconds[k] = (U[j, :, :r] * S[j, :r]).T.ravel()
+    off = np.concatenate([[0], np.cumsum(rank * length)[:-1]]).astype(np.int64)
+    first = np.concatenate(firsts) if K else np.zeros(0)
+    second = np.concatenate(seconds) if K else np.zeros(0)
     return first, second, off, rank, length
