@@ -5,9 +5,9 @@ point forces (:func:`direct_traction_ranges` and its builds), the Faxen read-off
 rigid velocities (:func:`center_readout`), the near-field block responses
 (:func:`traction_response`) and the small dense per-sphere products of every product
 (:func:`dense_rows`, :func:`apply_blocks`, :func:`apply_lowrank`,
-:func:`synthesize_forces`).  Their exact
-transposes are in :mod:`kernels_adjoint`; the solid harmonics and the unit-sphere field
-they share are in :mod:`harmonics`.
+:func:`synthesize_forces`).  Their exact transposes are in :mod:`kernels_adjoint`
+(:func:`apply_lowrank` is its own, with its factors swapped); the solid harmonics and the
+unit-sphere field they share are in :mod:`harmonics`.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from .harmonics import (cross_gradient, derivatives, field_buffers, solid_harmon
 
 __all__ = ["PARALLEL_WORK", "point_force_weight", "traction_expansion", "center_readout",
            "traction_response", "direct_traction_ranges", "direct_traction_ranges_serial",
-           "direct_traction_skip", "dense_rows", "apply_blocks", "apply_blocks_serial", "apply_lowrank",
-           "apply_lowrank_serial",
+           "direct_traction_skip", "dense_rows", "apply_blocks", "apply_blocks_serial",
+           "apply_lowrank", "apply_lowrank_serial",
            "real_block_columns",
            "synthesize_forces", "synthesize_forces_serial"]
 
