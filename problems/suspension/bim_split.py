@@ -75,8 +75,9 @@ class _Group(NamedTuple):
     in the ragged layout of :func:`kernels.apply_lowrank`, each on the first ``length[k]``
     coefficients (the coefficients are ordered by degree, so degree <= q is a prefix), and
     ``sel`` is then every coefficient.  ``ptr`` and ``src`` give the blocks by target
-    sphere, ``order``, ``src_ptr`` and ``tgt`` by source sphere (for the transpose);
-    ``synth`` synthesises ``sel`` onto the grid.
+    sphere (``fwd`` is their order for :func:`kernels.apply_lowrank`), ``order``,
+    ``src_ptr`` and ``tgt`` by source sphere (for the transpose); ``synth`` synthesises
+    ``sel`` onto the grid and ``synth_T`` is its transpose.
     """
 
     blocks: np.ndarray | None
@@ -85,6 +86,8 @@ class _Group(NamedTuple):
     src: np.ndarray
     sel: np.ndarray
     synth: np.ndarray
+    synth_T: np.ndarray
+    fwd: np.ndarray
     order: np.ndarray
     src_ptr: np.ndarray
     tgt: np.ndarray
@@ -111,8 +114,7 @@ class _Group(NamedTuple):
         else:
             first, second, off, rank, length = self.factors
             fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
-            fn(first, second, off, rank, length, self.ptr, np.arange(self.src.size),
-               self.src, c, acc)
+            fn(first, second, off, rank, length, self.ptr, self.fwd, self.src, c, acc)
         return acc
 
     def apply_transpose(self, acc_bar: np.ndarray, M: int) -> np.ndarray:
@@ -200,7 +202,7 @@ class _SplitAdjoint(AdjointPieces):
         out, coef_bar, ob = self.apply_bie_unblocked(w)
         if coef_bar is not None:
             for g in self.groups:
-                acc_bar = np.ascontiguousarray(dense_rows(ob, np.ascontiguousarray(g.synth.T)))
+                acc_bar = np.ascontiguousarray(dense_rows(ob, g.synth_T))
                 coef_bar[:, g.sel] += g.apply_transpose(acc_bar, self.op.M)
             out += dense_rows(coef_bar, self.analysis)
         return out.reshape(-1)
@@ -286,7 +288,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
                 blocks = np.empty((idx.size, n_q, n_q))
                 for k0 in range(0, idx.size, _CHUNK):
                     blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
-            low._groups.append(_group(blocks, None, idx, tgt, src, high.M, n_q, basis))
+            low._groups.append(_group(blocks, None, idx, tgt, src, high.M, n_q, plan))
         low.n_factored_blocks, low.mean_rank = 0, 0.0
         low.block_sizes = low.block_ranks = None
     else:
@@ -294,7 +296,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
                            for q in degree], dtype=np.int64)
         factors = _factor(plan.blocks, length, rank_tol)
         low._groups.append(_group(None, factors, np.arange(tgt.size), tgt, src, high.M,
-                                  basis.degree.size, basis))
+                                  basis.degree.size, plan))
         low.n_factored_blocks = int(tgt.size)
         low.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
         low.block_sizes, low.block_ranks = length, factors[3]
@@ -307,16 +309,18 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
 
 
 def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
-           tgt: np.ndarray, src: np.ndarray, M: int, n_coef: int, basis) -> _Group:
+           tgt: np.ndarray, src: np.ndarray, M: int, n_coef: int, plan) -> _Group:
     """The :class:`_Group` of the pairs ``idx`` (sorted by target) of the high's plan, acting
-    on the first ``n_coef`` coefficients."""
+    on the first ``n_coef`` coefficients (their synthesis: the leading rows of the plan's
+    ``block_synth``, a view when they are all of them)."""
     t, s = tgt[idx], np.ascontiguousarray(src[idx])
     ptr = np.searchsorted(t, np.arange(M + 1)).astype(np.int64)
     order = np.argsort(s, kind="stable").astype(np.int64)            # for the transpose
     src_ptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int64)
-    return _Group(blocks, factors, ptr, s, np.arange(n_coef),
-                  np.ascontiguousarray(basis.B[:, :n_coef].T), order, src_ptr,
-                  np.ascontiguousarray(t))
+    synth = np.ascontiguousarray(plan.block_synth[:n_coef])
+    synth_T = np.ascontiguousarray(plan.block_synth_T[:, :n_coef])
+    return _Group(blocks, factors, ptr, s, np.arange(n_coef), synth, synth_T,
+                  np.arange(idx.size, dtype=np.int64), order, src_ptr, np.ascontiguousarray(t))
 
 
 def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
