@@ -82,15 +82,26 @@ def _files(out: Path) -> dict[str, bytes]:
     return {f: (out / f).read_bytes() for f in ("results.csv", "history.csv")}
 
 
-def _readers_leave_the_files_alone(out: Path, rows: int, hist_rows: int, capsys) -> None:
-    """Open the store as every reader does while the writer is mid-line; nothing changes."""
+REFUSED_RUN = ["run", *SWEEP, "--no-report"]
+REFUSED_SIMULATE = ["simulate", "--scene", "lattice:m=2,model=rpy", "--solver", "bb-pgd",
+                    "--steps", "1"]
+
+
+def _readers_leave_the_files_alone(out: Path, rows: int, hist_rows: int, capsys,
+                                   commands: list[list[str]]) -> None:
+    """Open the store as readers do while the writer is mid-line (the store's reader, then
+    ``commands``: the report, or a second run or simulate, which are refused); nothing
+    changes."""
     snapshot = _files(out)
     store = RunStore(out)
     assert len(store.results()) == rows and len(store.history()) == hist_rows
     assert store.corrupt == []
-    assert main(["report", str(out), "--quiet"]) == 0
-    assert main(["run", *SWEEP, "--out", str(out), "--quiet", "--no-report"]) == 2
-    assert "being written by another lcpbench run" in capsys.readouterr().err
+    for args in commands:
+        if args[0] == "report":
+            assert main(["report", str(out), "--quiet"]) == 0
+            continue
+        assert main([*args, "--out", str(out), "--quiet"]) == 2
+        assert "being written by another lcpbench run" in capsys.readouterr().err
     assert _files(out) == snapshot                          # the half line survives, byte for byte
     assert not list(out.glob("*.corrupt"))
 
@@ -107,10 +118,11 @@ def test_readers_never_cut_the_line_a_live_runner_is_writing(tmp_path, capsys):
                               stderr=subprocess.PIPE)
     try:
         _wait(parts / "ready", writer)                       # half a history line on disk
-        _readers_leave_the_files_alone(out, rows, hist_rows, capsys)
+        _readers_leave_the_files_alone(out, rows, hist_rows, capsys,
+                                       [["report"], REFUSED_SIMULATE])
         (parts / "release").touch()
         _wait(parts / "ready2", writer)                      # half a result line on disk
-        _readers_leave_the_files_alone(out, rows, hist_rows, capsys)
+        _readers_leave_the_files_alone(out, rows, hist_rows, capsys, [["report"], REFUSED_RUN])
         (parts / "release2").touch()
         assert writer.wait(timeout=60) == 0
     finally:
