@@ -20,7 +20,7 @@ import pytest
 
 from lcpbench.cli import main
 from lcpbench.run.runner import execute, plan
-from lcpbench.run.store import RunLock, RunStore, StoreLocked
+from lcpbench.run.store import HISTORY_STORE_COLUMNS, RunLock, RunStore, StoreLocked
 from lcpbench.run.sweep import Sweep
 
 SWEEP = ["--solver", "bb-pgd", "--problem", "fathi:sizes=[4,6]"]
@@ -221,3 +221,18 @@ def test_compact_history_refuses_while_a_runner_holds_the_lock(tmp_path):
             RunStore(out).compact_history()
     assert (out / "history.csv").read_bytes() == history
     assert isinstance(RunStore(out).history(), pd.DataFrame)
+
+
+def test_history_lines_are_checked_by_their_fields_quotes_included(tmp_path):
+    out = _store(tmp_path)
+    history = out / "history.csv"
+    lines = history.read_text().split("\n")[:-1]
+    run_id, rest = lines[1].split(",", 1)
+    quoted = f'"{run_id}",{rest}'                             # same fields, through the parser
+    short = lines[2].rsplit(",", 2)[0]                        # two fields missing
+    history.write_text("\n".join([lines[0], quoted, short] + lines[3:]) + "\n")
+    store = RunStore(out)
+    assert [(path, line) for path, line, _ in store.corrupt] == [(str(history), 3)]
+    assert f"not {len(HISTORY_STORE_COLUMNS)} fields" in store.corrupt[0][2]
+    assert (out / "history.csv.corrupt").read_text() == short + "\n"
+    assert history.read_text().split("\n")[1] == quoted

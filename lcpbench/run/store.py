@@ -38,6 +38,7 @@ import zlib
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Optional
 
+import numpy as np
 import pandas as pd
 
 from lcpbench.core.result import HISTORY_COLUMNS
@@ -162,9 +163,7 @@ def _one_line(value):
 
 
 def _fields(line: str, count: int) -> bool:
-    """Whether ``line`` parses to ``count`` CSV fields (no parser for lines without quotes)."""
-    if '"' not in line:
-        return line.count(",") == count - 1
+    """Whether ``line`` parses to ``count`` CSV fields."""
     try:
         return len(next(csv.reader([line]))) == count
     except (csv.Error, StopIteration):
@@ -176,67 +175,95 @@ class _Scan:
 
     With ``checksum_column`` (the header's last column) a line is good when its
     last field is the CRC-32 of the rest; without it (``history.csv``, result
-    files written before the checksum), when it has as many fields as the header.
+    files written before the checksum), when it has as many fields as the header
+    (counted for all lines at once; a line with quotes goes through the CSV parser).
     A last line without its newline is good only when it passes the checksum, or,
     without one, when ``keep_tail`` accepts it.
 
     Attributes
     ----------
-    good : list of str
-        The header and the good lines, in file order, without newlines.
     bad : list of (int, str, str)
-        ``(line number, reason, text)`` of every other line.
+        ``(line number, reason, text)`` of every bad line.
     dirty : bool
-        Whether the file differs from ``good`` written back (a bad line, or a
-        last line without newline): a repair rewrites it.
+        Whether the file differs from :meth:`text` (a bad line, or a last line
+        without newline): a repair rewrites it.
     """
 
     def __init__(self, path: Path, checksum_column: Optional[str],
                  keep_tail: Optional[Callable[[str], bool]] = None):
-        with open(path, encoding="utf-8", newline="") as fh:
-            text = fh.read()
-        lines = text.split("\n")
-        if lines[-1] == "":
-            lines.pop()
-        terminated = text.endswith("\n")
-        self.good: list[str] = []
+        self.data = path.read_bytes()
+        self.terminated = self.data.endswith(b"\n")
+        arr = np.frombuffer(self.data, dtype=np.uint8)
+        newlines = np.flatnonzero(arr == ord("\n"))
+        self.starts = np.concatenate(([0], newlines + 1))
+        self.ends = np.concatenate((newlines, [arr.size]))
+        if self.terminated or not self.data:
+            self.starts, self.ends = self.starts[:-1], self.ends[:-1]
         self.bad: list[tuple[int, str, str]] = []
-        self.dirty = bool(text) and not terminated
-        if not lines:
-            return
-        if len(lines) == 1 and not terminated:
-            self.bad.append((1, "the header was cut short (no newline)", lines[0]))
-            return
-        header = next(csv.reader([lines[0]]))
-        crc = checksum_column is not None and header[-1:] == [checksum_column]
-        self.good.append(lines[0])
-        last = len(lines)
-        for i, line in enumerate(lines[1:], start=2):
-            tail = i == last and not terminated
-            if crc:
-                body, _, mark = line.rpartition(",")
-                ok = bool(body) and mark == _crc(body)
-                reason = "checksum mismatch (a cut, merged or edited row)"
+        self.ok = np.ones(self.starts.size, dtype=bool)
+        if self.starts.size == 1 and not self.terminated:
+            self._mark(0, "the header was cut short (no newline)")
+        elif self.starts.size:
+            header = next(csv.reader([self.line(0)]))
+            if checksum_column is not None and header[-1:] == [checksum_column]:
+                self._check_sums()
             else:
-                ok = _fields(line, len(header)) and (not tail or bool(keep_tail and
-                                                                        keep_tail(line)))
-                reason = f"not {len(header)} fields"
-            if tail and not ok:
-                reason = f"last line cut short (no newline; {reason})" if crc else \
-                    "last line cut short (no newline, and no checksum to show it is whole)"
-            if ok:
-                self.good.append(line)
-            else:
-                self.bad.append((i, reason, line))
-        self.dirty = self.dirty or bool(self.bad)
+                self._count_fields(arr, len(header), keep_tail)
+        self.bad.sort()
+        self.dirty = bool(self.bad) or (bool(self.data) and not self.terminated)
+
+    def line(self, i: int) -> str:
+        """Line ``i`` (0-based, the header is 0) without its newline."""
+        return self.data[self.starts[i]:self.ends[i]].decode("utf-8", errors="replace")
+
+    def _mark(self, i: int, reason: str) -> None:
+        self.ok[i] = False
+        self.bad.append((i + 1, reason, self.line(i)))
+
+    def _tail(self, i: int) -> bool:
+        return i == self.starts.size - 1 and not self.terminated
+
+    def _check_sums(self) -> None:
+        for i in range(1, self.starts.size):
+            body, _, mark = self.line(i).rpartition(",")
+            if not (body and mark == _crc(body)):
+                why = "checksum mismatch (a cut, merged or edited row)"
+                self._mark(i, f"last line cut short (no newline; {why})" if self._tail(i)
+                           else why)
+
+    def _count_fields(self, arr: np.ndarray, count: int,
+                      keep_tail: Optional[Callable[[str], bool]]) -> None:
+        def per_line(char: str) -> np.ndarray:
+            at = np.flatnonzero(arr == ord(char))
+            return np.searchsorted(at, self.ends) - np.searchsorted(at, self.starts)
+
+        ok = per_line(",") + 1 == count
+        quoted = per_line('"') > 0
+        for i in np.flatnonzero(quoted):
+            ok[i] = _fields(self.line(i), count)
+        last = self.starts.size - 1
+        tail_ok = bool(ok[last]) and keep_tail is not None and keep_tail(self.line(last))
+        for i in np.flatnonzero(~ok[1:]) + 1:
+            if not self._tail(i):
+                self._mark(i, f"not {count} fields")
+        if last > 0 and not self.terminated and not tail_ok:
+            self._mark(last, "last line cut short (no newline, and no checksum to show it "
+                             "is whole)")
+
+    def good_lines(self) -> list[str]:
+        """The header and the good lines, in file order, without newlines."""
+        return [self.line(i) for i in np.flatnonzero(self.ok)]
 
     def text(self) -> str:
         """The good lines as a file (each with its newline)."""
-        return "".join(line + "\n" for line in self.good)
+        if not self.bad:
+            text = self.data.decode("utf-8")
+            return text if self.terminated or not text else text + "\n"
+        return "".join(line + "\n" for line in self.good_lines())
 
     def frame(self, **read_csv) -> Optional[pd.DataFrame]:
         """The good lines through ``pandas.read_csv`` (None when there is no header)."""
-        if not self.good:
+        if not self.ok.any():
             return None
         return pd.read_csv(io.StringIO(self.text()), **read_csv)
 
@@ -283,7 +310,8 @@ class RunStore:
         if not self.history_path.exists() or self.history_path.stat().st_size == 0:
             return None
         def finished(line: str) -> bool:
-            ids = {next(csv.reader([r]))[0] for r in results.good[1:]} if results else set()
+            ids = {next(csv.reader([r]))[0] for r in results.good_lines()[1:]} \
+                if results else set()
             return next(csv.reader([line]))[0] in ids
 
         return _Scan(self.history_path, None, keep_tail=finished)
