@@ -309,6 +309,7 @@ class RunStore:
         its run has a result row (the history is written before its result row)."""
         if not self.history_path.exists() or self.history_path.stat().st_size == 0:
             return None
+
         def finished(line: str) -> bool:
             ids = {next(csv.reader([r]))[0] for r in results.good_lines()[1:]} \
                 if results else set()
