@@ -32,8 +32,8 @@ Non-symmetric matrices follow the symmetry policy of :mod:`lcpbench.problems.for
 MLCP files. Siconos' mixed LCPs (``mixedLinearComplementarity_printInFile``: two
 storage flags, ``n`` equality and ``m`` complementarity rows, the block rows, then
 the matrix; or the older ``n m NbLines`` layout) sit beside the LCPs in its test data
-and can start like a small LCP. A file is read as an LCP only when nothing but text
-follows ``q``; otherwise, when it has an MLCP's layout it is refused as an MLCP
+and can start like a small LCP. A file is read as an LCP only when no line of numbers
+follows ``q`` (a remark may start with one); otherwise, when it has an MLCP's layout it is refused as an MLCP
 (:class:`~lcpbench.problems.formats.UnsupportedProblem`, naming the file), and a
 file with numbers after ``q`` that is no MLCP is refused as malformed.
 """
@@ -373,7 +373,8 @@ def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
         _refuse_mlcp(text, p)
         raise
     after, line = c.next_token()
-    if after is not None and _leading_numbers([after]):
+    rest = c.lines[line].split()[c.tok if line == c.line else 0:] if after is not None else []
+    if rest and len(_leading_numbers(rest)) == len(rest):     # data, not a remark
         _refuse_mlcp(text, p)
         raise c.fail(f"a number ({after}) follows the {n} entries of q: the file holds more "
                      f"than an LCP of size {n}", line)

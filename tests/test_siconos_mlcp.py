@@ -48,6 +48,9 @@ def test_small_lcps_that_start_like_an_mlcp_are_still_read(tmp_path):
     one = ex.read_siconos_lcp(write(tmp_path / "one.dat", "1\n0\n1\n1\n1\t1\n2.0\n-1.0\n\n"
                                                           "Remark 1.2: x = 0.5 solves it\n"))
     assert one.dense()[0, 0] == 2.0 and one.b[0] == -1.0
+    numbered = ex.read_siconos_lcp(write(tmp_path / "numbered.dat", "1\n0\n1\n1\n1\t1\n2.0 "
+                                                                   "-1.0 2. remark\n"))
+    assert numbered.b[0] == -1.0
 
 
 def test_numbers_after_q_that_are_no_mlcp_are_refused(tmp_path):
