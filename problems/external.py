@@ -3,7 +3,11 @@
 The formats live in :mod:`lcpbench.problems.siconos` (Siconos numerics ``.dat``
 text) and :mod:`lcpbench.problems.fclib` (FCLIB local problems in HDF5); their
 readers and writers are re-exported here. A ``path`` parameter names one file
-or a folder of them (read in sorted order).
+or a folder of them (read in sorted order). A Siconos folder is read as far as it
+goes: files whose problem lcpbench does not solve (MLCPs, non-symmetric or
+indefinite matrices) are skipped and listed in one warning
+(:func:`lcpbench.problems.formats.read_supported`); one such file named by ``path``
+is an error.
 """
 
 from __future__ import annotations
@@ -15,11 +19,14 @@ from lcpbench import LCP, register_problem
 from lcpbench.core.specs import Bounds, CheckedParams
 
 from .fclib import FCLIB_DEFAULT_SYMMETRIZE_RTOL, read_fclib_local, write_fclib_local
-from .formats import input_files
+from pathlib import Path
+
+from .formats import UnsupportedProblem, input_files, read_supported
 from .siconos import SICONOS_STORAGES, SiconosFormatError, read_siconos_lcp, write_siconos_lcp
 
 __all__ = ["read_siconos_lcp", "write_siconos_lcp", "read_fclib_local", "write_fclib_local",
-           "SiconosFormatError", "SICONOS_STORAGES", "FCLIB_DEFAULT_SYMMETRIZE_RTOL"]
+           "SiconosFormatError", "UnsupportedProblem", "SICONOS_STORAGES",
+           "FCLIB_DEFAULT_SYMMETRIZE_RTOL"]
 
 #: A relative asymmetry tolerance: >= 0, inf symmetrises any matrix.
 _Rtol = Annotated[float, Bounds(ge=0, finite=False)]
@@ -52,16 +59,26 @@ class _FileParams(CheckedParams):
 @dataclass(frozen=True)
 class SiconosParams(_FileParams):
     """Parameters of siconos: ``path`` is a Siconos numerics LCP ``.dat`` file or a folder of
-    them (``*.dat``); ``symmetrize_rtol`` defaults to 0, so non-symmetric files raise."""
+    them (``*.dat``); ``symmetrize_rtol`` defaults to 0, so a non-symmetric file raises (in a
+    folder: is skipped and listed, as are MLCP files)."""
 
     example: ClassVar[str] = "siconos:path=FILE.dat"
 
 
 @register_problem("siconos", SiconosParams)
 def siconos(p: SiconosParams) -> list[LCP]:
-    """LCPs in the Siconos numerics text format (dense, sparse-block or CSparse storage)."""
-    return [read_siconos_lcp(f, symmetrize_rtol=p.symmetrize_rtol)
-            for f in input_files(p.path, ("*.dat",), "Siconos .dat")]
+    """LCPs in the Siconos numerics text format (dense, sparse-block or CSparse storage).
+
+    A folder's MLCP, non-symmetric and indefinite files are skipped and listed in a warning.
+    """
+    files = input_files(p.path, ("*.dat",), "Siconos .dat")
+
+    def read(f: Path) -> LCP:
+        return read_siconos_lcp(f, symmetrize_rtol=p.symmetrize_rtol)
+
+    if not Path(p.path).is_dir():
+        return [read(files[0])]
+    return read_supported(files, read, f"siconos:path={p.path}")
 
 
 @dataclass(frozen=True)

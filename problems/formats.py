@@ -2,6 +2,13 @@
 
 Used by :mod:`lcpbench.problems.siconos` and :mod:`lcpbench.problems.fclib`.
 
+Unsupported problems
+    A file that holds a well-formed problem lcpbench does not solve (a non-symmetric or
+    indefinite matrix, a Siconos MLCP) raises :class:`UnsupportedProblem`, a
+    ``ValueError``. Reading one file, that is the error; reading a folder
+    (:func:`read_supported`), such files are skipped and listed in one warning, and the
+    rest are read. A malformed file is an error either way.
+
 Symmetry policy
     ``lcpbench.LCP`` is symmetric. A matrix whose asymmetry ``max|A - A'| / max|A|``
     exceeds :data:`lcpbench.core.lcp.SYMMETRY_RTOL` but not ``symmetrize_rtol`` is replaced by
@@ -15,7 +22,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Union
+from typing import Callable, Union
 
 import numpy as np
 import scipy.sparse as sp
@@ -23,9 +30,25 @@ import scipy.sparse as sp
 from lcpbench import LCP
 from lcpbench.core.lcp import SYMMETRY_RTOL
 
-__all__ = ["PathLike", "symmetric_lcp", "input_files"]
+__all__ = ["PathLike", "UnsupportedProblem", "symmetric_lcp", "input_files", "read_supported"]
 
 PathLike = Union[str, Path]
+
+
+class UnsupportedProblem(ValueError):
+    """A well-formed file whose problem lcpbench does not solve.
+
+    Parameters
+    ----------
+    message : str
+        The full one-line message (names the file and what to do).
+    reason : str
+        A few words for the list of skipped files (``"MLCP"``, ``"not symmetric"``).
+    """
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
 
 
 def _symmetric(A, what: str, symmetrize_rtol: float):
@@ -39,10 +62,11 @@ def _symmetric(A, what: str, symmetrize_rtol: float):
     if rel <= SYMMETRY_RTOL:
         return A
     if rel > symmetrize_rtol:
-        raise ValueError(
+        raise UnsupportedProblem(
             f"{what}: the matrix is not symmetric (max|A-A'| = {asym:.3g}, {rel:.3g} relative "
             f"to max|A|), but lcpbench solves symmetric LCPs. Pass symmetrize_rtol >= "
-            f"{rel:.2g} to replace it by (A + A')/2 if the asymmetry is round-off")
+            f"{rel:.2g} to replace it by (A + A')/2 if the asymmetry is round-off",
+            f"not symmetric, {rel:.2g} relative")
     warnings.warn(f"{what}: symmetrised the matrix (max|A-A'| = {asym:.3g}, {rel:.3g} relative "
                   f"to max|A|, within symmetrize_rtol = {symmetrize_rtol:g})", RuntimeWarning,
                   stacklevel=4)
@@ -68,14 +92,24 @@ def symmetric_lcp(A, b, path: Path, what: str, symmetrize_rtol: float, **kw) -> 
 
     Raises
     ------
+    UnsupportedProblem
+        If ``A`` is not symmetric beyond ``symmetrize_rtol``, or not positive semidefinite.
     ValueError
-        If ``A`` is not symmetric beyond ``symmetrize_rtol`` or not a valid LCP matrix.
+        If ``A`` or ``b`` is not a valid LCP matrix or vector otherwise.
     """
     A = _symmetric(A, f"{path}: {what}", symmetrize_rtol)
     try:
         return LCP(A, b, **kw)
     except (ValueError, TypeError) as exc:
-        raise type(exc)(f"{path}: {what} is not a valid lcpbench LCP: {exc}") from None
+        message = f"{path}: {what} is not a valid lcpbench LCP: {exc}"
+        if isinstance(exc, ValueError) and kw.get("psd_check", True):
+            try:        # valid but for semidefiniteness: an LCP lcpbench does not solve
+                LCP(A, b, **{**kw, "psd_check": False})
+            except (ValueError, TypeError):
+                pass
+            else:
+                raise UnsupportedProblem(message, "not positive semidefinite") from None
+        raise type(exc)(message) from None
 
 
 def input_files(path: str, patterns: tuple[str, ...], kind: str) -> list[Path]:
@@ -96,3 +130,41 @@ def input_files(path: str, patterns: tuple[str, ...], kind: str) -> list[Path]:
         raise FileNotFoundError(f"{p}: no such {kind} file or folder")
     return [p]
 
+
+def read_supported(files: list[Path], read: Callable[[Path], LCP], where: str) -> list[LCP]:
+    """``read`` every file, skipping those whose problem lcpbench does not solve.
+
+    Parameters
+    ----------
+    files : list of Path
+        The folder's files, in order.
+    read : callable
+        Reads one file; raises :class:`UnsupportedProblem` for a file to skip.
+    where : str
+        What is read (``"siconos:path=FOLDER"``), named in the warning and the error.
+
+    Returns
+    -------
+    list of LCP
+        The files' LCPs; the skipped files are listed, each with its reason, in one
+        ``UserWarning``.
+
+    Raises
+    ------
+    ValueError
+        If no file is left (the message lists the reasons), or as ``read`` raises for a
+        malformed file.
+    """
+    lcps, skipped = [], []
+    for f in files:
+        try:
+            lcps.append(read(f))
+        except UnsupportedProblem as exc:
+            skipped.append(f"{f.name} ({exc.reason})")
+    if skipped and not lcps:
+        raise ValueError(f"{where}: none of the {len(files)} file(s) is an LCP lcpbench solves "
+                         f"(symmetric, positive semidefinite): {', '.join(skipped)}")
+    if skipped:
+        warnings.warn(f"{where}: skipped {len(skipped)} of {len(files)} files, problems "
+                      f"lcpbench does not solve: {', '.join(skipped)}", UserWarning, stacklevel=3)
+    return lcps

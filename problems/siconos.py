@@ -28,18 +28,27 @@ precision: lcpbench keeps every bit).
 
 Non-symmetric matrices follow the symmetry policy of :mod:`lcpbench.problems.formats`
 (default here: refuse, since siconos' collection holds genuinely non-symmetric LCPs).
+
+MLCP files. Siconos' mixed LCPs (``mixedLinearComplementarity_printInFile``: two
+storage flags, ``n`` equality and ``m`` complementarity rows, the block rows, then
+the matrix; or the older ``n m NbLines`` layout) sit beside the LCPs in its test data
+and can start like a small LCP. A file is read as an LCP only when no line of numbers
+follows ``q`` (a remark may start with one); otherwise, when it has an MLCP's layout it is refused as an MLCP
+(:class:`~lcpbench.problems.formats.UnsupportedProblem`, naming the file), and a
+file with numbers after ``q`` that is no MLCP is refused as malformed.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
 
 from lcpbench import LCP
 
-from .formats import PathLike, symmetric_lcp
+from .formats import PathLike, UnsupportedProblem, symmetric_lcp
 
 __all__ = ["read_siconos_lcp", "write_siconos_lcp", "SiconosFormatError", "SICONOS_STORAGES"]
 
@@ -64,8 +73,9 @@ class _Cursor:
         self.toks: list[str] = self.lines[0].split() if self.lines else []
         self.tok = 0
 
-    def fail(self, msg: str) -> SiconosFormatError:
-        return SiconosFormatError(f"{self.path}, line {self.line + 1}: {msg}. The file does not "
+    def fail(self, msg: str, line: Optional[int] = None) -> SiconosFormatError:
+        line = self.line if line is None else line
+        return SiconosFormatError(f"{self.path}, line {line + 1}: {msg}. The file does not "
                                   "follow the Siconos numerics LCP format (size, matrix as "
                                   "NM_write_in_file writes it, then q)")
 
@@ -97,6 +107,17 @@ class _Cursor:
 
     def float(self, what: str) -> float:
         return self._number(what, float, "a number")
+
+    def next_token(self) -> tuple[Optional[str], int]:
+        """The token after the ones read and its line (0-based), or None at the end of the
+        file; nothing is read."""
+        if self.tok < len(self.toks):
+            return self.toks[self.tok], self.line
+        for k in range(self.line + 1, len(self.lines)):
+            toks = self.lines[k].split()
+            if toks:
+                return toks[0], k
+        return None, len(self.lines)
 
     def next_line(self, what: str) -> str:
         """The rest of the current line is skipped; return the next whole line."""
@@ -232,6 +253,87 @@ def _read_sparse(c: _Cursor, size0: int, size1: int) -> np.ndarray:
     return M.toarray()
 
 
+def _leading_numbers(tokens: list[str]) -> list[float]:
+    """The numbers at the start of ``tokens``, up to the first word that is not one."""
+    out = []
+    for t in tokens:
+        try:
+            out.append(float(t))
+        except ValueError:
+            break
+    return out
+
+
+def _is_count(v: float) -> bool:
+    return v >= 0 and v == int(v)
+
+
+def _mlcp_sizes(text: str) -> Optional[tuple[int, int]]:
+    """``(n, m)`` when ``text`` has the layout of a Siconos MLCP file, else None.
+
+    Current layout: storage flags ``st1 st2`` (0 or 1), ``n``, ``m``; with ``st1`` the
+    block rows ``0 .. n+m`` (increasing), one flag per block and a matrix header
+    ``storage size0 size1`` with ``size1 = n + m``; with ``st2`` alone the blocks
+    ``A B C D a b`` (``(n+m)^2 + n + m`` numbers). Older layout: ``n m NbLines``, then
+    ``NbLines (n + m + 1)`` numbers.
+    """
+    v = _leading_numbers(text.split())
+    if len(v) < 4 or not all(_is_count(x) for x in v[:4]):
+        return None
+    st1, st2, n, m = (int(x) for x in v[:4])
+    if st1 in (0, 1) and st2 in (0, 1) and (st1 or st2) and n + m > 0:
+        if st1:
+            rows, k = [], 4
+            while k < len(v) and len(rows) <= n + m and _is_count(v[k]):
+                rows.append(int(v[k]))
+                k += 1
+                if rows[-1] >= n + m:
+                    break
+            blocks = len(rows) - 1
+            if blocks >= 1 and rows[0] == 0 and rows[-1] == n + m and \
+                    all(a < b for a, b in zip(rows, rows[1:])) and \
+                    len(v) >= k + blocks + 3:
+                storage, size1 = v[k + blocks], v[k + blocks + 2]
+                if storage in (0, 1, 2) and size1 == n + m:
+                    return n, m
+        elif len(v) - 4 >= (n + m) ** 2 + n + m:
+            return n, m
+    n, m, lines = (int(x) for x in v[:3])
+    if lines >= m and n + m > 0 and len(v) - 3 == lines * (n + m + 1):
+        return n, m
+    return None
+
+
+def _refuse_mlcp(text: str, p: Path) -> None:
+    """Raise :class:`UnsupportedProblem` when the file is a Siconos MLCP."""
+    sizes = _mlcp_sizes(text)
+    if sizes is not None:
+        raise UnsupportedProblem(
+            f"{p}: a Siconos MLCP file (mixed LCP with n = {sizes[0]} equality and m = "
+            f"{sizes[1]} complementarity rows), not an LCP; lcpbench solves symmetric LCPs "
+            "and does not import MLCPs (a folder import skips such files)", "MLCP")
+
+
+def _read_lcp(c: _Cursor) -> tuple[int, str, np.ndarray, np.ndarray]:
+    """``(n, storage name, M, q)`` of the LCP the cursor is at."""
+    n = c.int("the problem size n")
+    storage = c.int("the storage type (0 dense, 1 sparse block, 2 sparse)")
+    size0, size1 = c.int("size0 (rows)"), c.int("size1 (columns)")
+    if size0 != size1 or size0 != n:
+        raise c.fail(f"the matrix is {size0}x{size1} but the problem size is {n}; an LCP needs "
+                     "an n x n matrix")
+    if n < 0:
+        raise c.fail(f"negative size {n}")
+    readers = {_NM_DENSE: ("dense", _read_dense), _NM_SPARSE_BLOCK: ("sparse-block", _read_sbm),
+               _NM_SPARSE: ("sparse", _read_sparse)}
+    if storage not in readers:
+        raise c.fail(f"unknown storage type {storage} (0 dense, 1 sparse block, 2 sparse)")
+    name, reader = readers[storage]
+    M = reader(c, size0, size1)
+    q = np.array([c.float(f"q[{i}]") for i in range(size1)])
+    return n, name, M, q
+
+
 def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
                      psd_check: bool = True) -> LCP:
     """Read an LCP written by Siconos numerics (``linearComplementarity_printInFile``).
@@ -255,8 +357,9 @@ def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
     ------
     SiconosFormatError
         Naming the line and the item that does not follow the format.
-    ValueError
-        If the matrix is not symmetric (beyond ``symmetrize_rtol``) or not PSD.
+    UnsupportedProblem
+        A ``ValueError``: the file is a Siconos MLCP, or its matrix is not symmetric
+        (beyond ``symmetrize_rtol``) or not positive semidefinite.
     """
     p = Path(path)
     try:
@@ -264,24 +367,20 @@ def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
     except (OSError, UnicodeDecodeError) as exc:
         raise SiconosFormatError(f"{p}: cannot read the file as text ({exc})") from None
     c = _Cursor(text, p)
-    n = c.int("the problem size n")
-    storage = c.int("the storage type (0 dense, 1 sparse block, 2 sparse)")
-    size0, size1 = c.int("size0 (rows)"), c.int("size1 (columns)")
-    if size0 != size1 or size0 != n:
-        raise c.fail(f"the matrix is {size0}x{size1} but the problem size is {n}; an LCP needs "
-                     "an n x n matrix")
-    if n < 0:
-        raise c.fail(f"negative size {n}")
-    readers = {_NM_DENSE: ("dense", _read_dense), _NM_SPARSE_BLOCK: ("sparse-block", _read_sbm),
-               _NM_SPARSE: ("sparse", _read_sparse)}
-    if storage not in readers:
-        raise c.fail(f"unknown storage type {storage} (0 dense, 1 sparse block, 2 sparse)")
-    name, reader = readers[storage]
-    M = reader(c, size0, size1)
-    q = np.array([c.float(f"q[{i}]") for i in range(size1)])
+    try:
+        n, name, M, q = _read_lcp(c)
+    except SiconosFormatError:
+        _refuse_mlcp(text, p)
+        raise
+    after, line = c.next_token()
+    rest = c.lines[line].split()[c.tok if line == c.line else 0:] if after is not None else []
+    if rest and len(_leading_numbers(rest)) == len(rest):     # data, not a remark
+        _refuse_mlcp(text, p)
+        raise c.fail(f"a number ({after}) follows the {n} entries of q: the file holds more "
+                     f"than an LCP of size {n}", line)
     return symmetric_lcp(M, q, p, "Siconos LCP", symmetrize_rtol, name=f"siconos/{p.stem}",
-                  meta={"family": "siconos", "n": n, "storage": name, "source": str(p)},
-                  psd_check=psd_check)
+                         meta={"family": "siconos", "n": n, "storage": name, "source": str(p)},
+                         psd_check=psd_check)
 
 
 def write_siconos_lcp(path: PathLike, A, b, *, storage: str = "dense") -> Path:

@@ -21,6 +21,14 @@ honest and the reported ``w`` independent of the dense sweeps:
 * ``lemke``: the pivoting itself uses ``ctx.dense``; the final ``w = A x + b``
   is computed through ``ctx.A``: **one counted MVP per solve** (none when
   ``b >= 0``: ``x = 0`` is the solution and ``A 0`` is free).
+
+Threads
+-------
+Both run with BLAS on one thread (:func:`lcpbench.toolkit.blas.on_one_blas_thread`):
+their products are single rows (pgs) or rank-one updates and small solves
+(lemke), where a threaded BLAS only adds start-up and, on a loaded machine,
+contention (lemke at n = 106 took a median 850 ms on a busy 2-core machine
+against 16 ms on one thread).
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ from lcpbench import register_solver
 from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.toolkit.blas import on_one_blas_thread
 
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
 
@@ -54,6 +63,7 @@ class PGSParams(CheckedParams):
 
 
 @register_solver("pgs", PGSParams, needs_dense=True)
+@on_one_blas_thread
 def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
     """Projected Gauss-Seidel / SOR sweeps on the dense matrix (not MVP-only).
 
@@ -144,6 +154,7 @@ def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.nda
 
 
 @register_solver("lemke", LemkeParams, needs_dense=True)
+@on_one_blas_thread
 def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     """Lemke's complementary pivoting with covering vector e = 1 (not MVP-only).
 

@@ -2,6 +2,7 @@
 timeout rows with their time, history without duplicate blocks."""
 
 import time
+from types import SimpleNamespace
 
 import pandas as pd
 
@@ -112,3 +113,56 @@ def test_run_with_timeout_writes_rows_when_the_reference_hangs(tmp_path, monkeyp
     assert len(rows) == 2
     assert rows["ref_solvers"].str.contains("reference solve killed after 3 s").all()
     assert not (rows["status"] == "converged").any()
+
+
+class _FakeDask:
+    """Stand-ins for distributed's Client, LocalCluster and as_completed: tasks run here, and
+    every task of the solver ``doomed`` loses its worker (``KilledWorker``)."""
+
+    def __init__(self, doomed: str):
+        self.doomed = doomed
+
+    def install(self, monkeypatch) -> None:
+        import distributed
+
+        fake = self
+
+        class Future:
+            def __init__(self, fn, args):
+                self.fn, self.args = fn, args
+
+            def result(self):
+                if self.args[1].solver.label == fake.doomed:
+                    raise distributed.KilledWorker(
+                        "lcpbench-task", SimpleNamespace(address="tcp://127.0.0.1:40000"), 3)
+                return self.fn(*self.args)
+
+        class Client:
+            def __init__(self, *args, **kwargs):
+                pass
+
+            def submit(self, fn, *args, **kwargs):
+                return Future(fn, args)
+
+            def close(self):
+                pass
+
+        class Cluster(Client):
+            pass
+
+        monkeypatch.setattr(distributed, "Client", Client)
+        monkeypatch.setattr(distributed, "LocalCluster", Cluster)
+        monkeypatch.setattr(distributed, "as_completed", lambda futures: list(futures))
+
+
+def test_a_dask_killed_worker_is_retried_once_on_resume(tmp_path, monkeypatch):
+    _FakeDask("test-misbehave:mode=kill").install(monkeypatch)
+    sweep = Sweep(solvers=["test-misbehave:mode=kill", "bb-pgd"], problems=["fathi:sizes=[4]"])
+    ran = [execute(plan(sweep), RunStore(tmp_path), executor="dask", jobs=2, quiet=True)["ran"]
+           for _ in range(3)]
+    assert ran == [2, 1, 0]                              # the lost run once more, then done
+    rows = pd.read_csv(tmp_path / "results.csv")
+    lost = rows[rows["solver"] == "test-misbehave:mode=kill"]
+    assert len(lost) == 2 and (lost["status"] == "failed").all()
+    assert lost["message"].str.startswith("worker process died (dask KilledWorker:").all()
+    assert bool(rows.loc[rows["solver"] == "bb-pgd", "solved"].iloc[0])

@@ -9,7 +9,8 @@ inside a daemonic Dask worker where ``multiprocessing`` refuses to start
 children). The parent kills a child that outlives its deadline (the run is
 recorded as ``timeout``) and records a child that dies (killed, segfault) as
 ``failed`` with its exit status, so per-run timeouts and crash containment
-hold on every executor.
+hold on every executor. A run whose child or Dask worker died is run once more
+on resume (:meth:`lcpbench.run.store.RunStore.done_ids`).
 
 Dask is an optional dependency (``pip install -e .[dask]``); problem data
 reaches workers as the problem *spec* (a few bytes): each worker regenerates
@@ -25,6 +26,8 @@ import select
 import signal
 import time
 from typing import Callable, Optional
+
+from lcpbench.run.store import DIED_PREFIX
 
 __all__ = ["ForkedCall", "call_with_deadline", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor",
            "EXECUTORS"]
@@ -224,18 +227,35 @@ class DaskExecutor:
                                      key=f"lcpbench-{run.run_id}-{time.time_ns()}"): run
                        for run in todo}
             for fut in as_completed(futures):
-                run = futures[fut]
-                try:
-                    result, elapsed = fut.result()
-                except Exception as exc:  # the worker itself died (KilledWorker, ...)
-                    record(failure(run, "failed", f"dask task failed: {type(exc).__name__}: "
-                                                  f"{exc}", None), None)
-                    continue
-                record(*outcome(result, run, self.timeout, failure, elapsed))
+                self.collect(fut, futures[fut], failure, record)
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
+
+
+    def collect(self, fut, run, failure: Failure, record: Record) -> None:
+        """Record the row of one finished future.
+
+        A task whose worker died under it (``distributed.KilledWorker``: the
+        scheduler lost its worker, out of memory, killed) gets a ``failed`` row
+        whose message starts with :data:`~lcpbench.run.store.DIED_PREFIX`, so a
+        resume runs it once more, as for a dead child on the process executor.
+        Any other exception of the task is the run's own ``failed`` row.
+        """
+        from distributed import KilledWorker
+
+        try:
+            result, elapsed = fut.result()
+        except KilledWorker as exc:
+            record(failure(run, "failed", f"{DIED_PREFIX} (dask KilledWorker: {exc})", None),
+                   None)
+            return
+        except Exception as exc:  # noqa: BLE001 - the task's own failure, recorded as a row
+            record(failure(run, "failed", f"dask task failed: {type(exc).__name__}: {exc}",
+                           None), None)
+            return
+        record(*outcome(result, run, self.timeout, failure, elapsed))
 
 
 def make_executor(kind: str, jobs: int = 1, timeout: Optional[float] = None,

@@ -1,11 +1,25 @@
 """The run store: a folder of ``results.csv``, ``history.csv`` and ``meta.json``.
 
 Rows are appended and flushed one run at a time, so an interrupted sweep loses
-at most the runs in flight; a line cut short by a crash is dropped on the next
-open. Every result row is one line ending in ``row_crc``, the CRC-32 of the
-rest of the line: on open, a line whose checksum does not match (a half row,
-a stray quote, an edit) is moved to ``results.csv.corrupt``, reported with its
-file and line (:attr:`RunStore.corrupt`), and its run is run again on resume.
+at most the runs in flight. Every result row is one line ending in ``row_crc``,
+the CRC-32 of the rest of the line.
+
+Locking. A runner (``lcpbench run``, ``simulate``) holds an exclusive ``flock`` on
+``DIR/.lock`` while it writes (:meth:`RunStore.lock`). Files are rewritten
+(repaired, compacted) only under that lock: a reader (``lcpbench report``, a
+second runner that is then refused) never changes a file while a runner holds
+it, and reads what is complete, in memory (a half-written last line is ignored,
+not deleted). Opening a store whose lock is free repairs it under the lock.
+
+Repair. A line whose checksum does not match (a half row, a stray quote, an
+edit) is moved to ``results.csv.corrupt``, reported with its file and line
+(:attr:`RunStore.corrupt`), and its run is run again on resume. A last line
+without its newline is kept when its checksum is valid (a file saved without
+the final newline) and set aside like any bad line otherwise; the last line of
+``history.csv`` (no checksum) is kept only when it has every field and its run
+has a result row (the history is written before its result), else set aside.
+Nothing is deleted without being set aside with its file and line.
+
 A run whose worker process was killed from outside is run once more on resume.
 ``meta.json`` is written atomically (temporary file, then rename).
 ``pandas.read_csv`` loads both CSV files without options.
@@ -13,15 +27,18 @@ A run whose worker process was killed from outside is run once more on resume.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import fcntl
 import io
 import json
 import os
+import time
 import zlib
 from pathlib import Path
-from typing import Iterable, Optional
+from typing import Callable, Iterable, Iterator, Optional
 
+import numpy as np
 import pandas as pd
 
 from lcpbench.core.result import HISTORY_COLUMNS
@@ -68,26 +85,46 @@ class RunLock:
     lock when its holder exits, however it exits (``kill -9`` included), so a
     stale lock cannot block a resume. Children forked for runs close their copy
     of the descriptor, so a run outliving a killed runner does not keep the lock.
+
+    Parameters
+    ----------
+    path : Path
+        The lock file (``DIR/.lock``).
+    repair : bool
+        A short hold by a reader that repairs the files (written into the lock
+        file as ``PID repair``): it is refused at once when anyone holds the
+        lock, while a runner that meets it waits for it (up to
+        :attr:`REPAIR_WAIT_S`) instead of being refused.
     """
 
     _held: list = []
+    #: Seconds a runner waits for a reader's repair to finish before it gives up.
+    REPAIR_WAIT_S = 60.0
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, *, repair: bool = False):
         self.path = Path(path)
+        self.repair = repair
         self.fd: Optional[int] = None
 
     def __enter__(self) -> "RunLock":
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
-            raise StoreLocked(
-                f"{self.path.parent} is being written by another lcpbench run (pid {holder}); "
-                "wait for it to finish, or choose another --out") from None
+        deadline = time.monotonic() + self.REPAIR_WAIT_S
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+                if self.repair or not holder.endswith(" repair") or \
+                        time.monotonic() > deadline:
+                    os.close(fd)
+                    raise StoreLocked(
+                        f"{self.path.parent} is being written by another lcpbench run (pid "
+                        f"{holder.split()[0]}); wait for it to finish, or choose another "
+                        "--out") from None
+                time.sleep(0.02)            # a reader's repair: over in moments
         os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        os.pwrite(fd, f"{os.getpid()}{' repair' if self.repair else ''}\n".encode(), 0)
         self.fd = fd
         RunLock._held.append(fd)
         return self
@@ -112,23 +149,6 @@ def _close_held_locks_in_child() -> None:
 os.register_at_fork(after_in_child=_close_held_locks_in_child)
 
 
-def _repair_tail(path: Path) -> int:
-    """Drop a final line without its newline (a row cut short); returns bytes dropped."""
-    if not path.exists() or path.stat().st_size == 0:
-        return 0
-    with open(path, "rb+") as fh:
-        fh.seek(0, os.SEEK_END)
-        size = fh.tell()
-        fh.seek(max(0, size - 1))
-        if fh.read(1) == b"\n":
-            return 0
-        fh.seek(0)
-        data = fh.read()
-        keep = data.rfind(b"\n") + 1
-        fh.truncate(keep)
-        return size - keep
-
-
 def _crc(text: str) -> str:
     return f"{zlib.crc32(text.encode('utf-8')):08x}"
 
@@ -142,38 +162,110 @@ def _one_line(value):
     return value
 
 
-def _scan(path: Path, checksum_column: Optional[str]) -> tuple[list[str], list[tuple[int, str]]]:
-    """The good lines of a CSV file (header first) and the bad ones as ``(line number, reason)``.
+def _fields(line: str, count: int) -> bool:
+    """Whether ``line`` parses to ``count`` CSV fields."""
+    try:
+        return len(next(csv.reader([line]))) == count
+    except (csv.Error, StopIteration):
+        return False
+
+
+class _Scan:
+    """The lines of one CSV file of the store, sorted into good and bad.
 
     With ``checksum_column`` (the header's last column) a line is good when its
-    last field is the CRC-32 of the rest; without it (files written before
-    the checksum), when it parses to as many fields as the header has.
+    last field is the CRC-32 of the rest; without it (``history.csv``, result
+    files written before the checksum), when it has as many fields as the header
+    (counted for all lines at once; a line with quotes goes through the CSV parser).
+    A last line without its newline is good only when it passes the checksum, or,
+    without one, when ``keep_tail`` accepts it.
+
+    Attributes
+    ----------
+    bad : list of (int, str, str)
+        ``(line number, reason, text)`` of every bad line.
+    dirty : bool
+        Whether the file differs from :meth:`text` (a bad line, or a last line
+        without newline): a repair rewrites it.
     """
-    with open(path, encoding="utf-8", newline="") as fh:
-        lines = fh.read().split("\n")
-    if lines and lines[-1] == "":
-        lines.pop()
-    if not lines:
-        return [], []
-    header = next(csv.reader([lines[0]]))
-    crc = checksum_column is not None and header[-1:] == [checksum_column]
-    good, bad = [lines[0]], []
-    for i, line in enumerate(lines[1:], start=2):
-        if crc:
-            body, _, tail = line.rpartition(",")
-            ok = bool(body) and tail == _crc(body)
-            reason = "checksum mismatch (a cut, merged or edited row)"
-        else:
-            try:
-                ok = len(next(csv.reader([line]))) == len(header)
-            except (csv.Error, StopIteration):
-                ok = False
-            reason = f"not {len(header)} fields"
-        if ok:
-            good.append(line)
-        else:
-            bad.append((i, reason))
-    return good, bad
+
+    def __init__(self, path: Path, checksum_column: Optional[str],
+                 keep_tail: Optional[Callable[[str], bool]] = None):
+        self.data = path.read_bytes()
+        self.terminated = self.data.endswith(b"\n")
+        arr = np.frombuffer(self.data, dtype=np.uint8)
+        newlines = np.flatnonzero(arr == ord("\n"))
+        self.starts = np.concatenate(([0], newlines + 1))
+        self.ends = np.concatenate((newlines, [arr.size]))
+        if self.terminated or not self.data:
+            self.starts, self.ends = self.starts[:-1], self.ends[:-1]
+        self.bad: list[tuple[int, str, str]] = []
+        self.ok = np.ones(self.starts.size, dtype=bool)
+        if self.starts.size == 1 and not self.terminated:
+            self._mark(0, "the header was cut short (no newline)")
+        elif self.starts.size:
+            header = next(csv.reader([self.line(0)]))
+            if checksum_column is not None and header[-1:] == [checksum_column]:
+                self._check_sums()
+            else:
+                self._count_fields(arr, len(header), keep_tail)
+        self.bad.sort()
+        self.dirty = bool(self.bad) or (bool(self.data) and not self.terminated)
+
+    def line(self, i: int) -> str:
+        """Line ``i`` (0-based, the header is 0) without its newline."""
+        return self.data[self.starts[i]:self.ends[i]].decode("utf-8", errors="replace")
+
+    def _mark(self, i: int, reason: str) -> None:
+        self.ok[i] = False
+        self.bad.append((i + 1, reason, self.line(i)))
+
+    def _tail(self, i: int) -> bool:
+        return i == self.starts.size - 1 and not self.terminated
+
+    def _check_sums(self) -> None:
+        for i in range(1, self.starts.size):
+            body, _, mark = self.line(i).rpartition(",")
+            if not (body and mark == _crc(body)):
+                why = "checksum mismatch (a cut, merged or edited row)"
+                self._mark(i, f"last line cut short (no newline; {why})" if self._tail(i)
+                           else why)
+
+    def _count_fields(self, arr: np.ndarray, count: int,
+                      keep_tail: Optional[Callable[[str], bool]]) -> None:
+        def per_line(char: str) -> np.ndarray:
+            at = np.flatnonzero(arr == ord(char))
+            return np.searchsorted(at, self.ends) - np.searchsorted(at, self.starts)
+
+        ok = per_line(",") + 1 == count
+        quoted = per_line('"') > 0
+        for i in np.flatnonzero(quoted):
+            ok[i] = _fields(self.line(i), count)
+        last = self.starts.size - 1
+        tail_ok = bool(ok[last]) and keep_tail is not None and keep_tail(self.line(last))
+        for i in np.flatnonzero(~ok[1:]) + 1:
+            if not self._tail(i):
+                self._mark(i, f"not {count} fields")
+        if last > 0 and not self.terminated and not tail_ok:
+            self._mark(last, "last line cut short (no newline, and no checksum to show it "
+                             "is whole)")
+
+    def good_lines(self) -> list[str]:
+        """The header and the good lines, in file order, without newlines."""
+        return [self.line(i) for i in np.flatnonzero(self.ok)]
+
+    def text(self) -> str:
+        """The good lines as a file (each with its newline)."""
+        if not self.bad:
+            text = self.data.decode("utf-8")
+            return text if self.terminated or not text else text + "\n"
+        return "".join(line + "\n" for line in self.good_lines())
+
+    def frame(self, **read_csv) -> Optional[pd.DataFrame]:
+        """The good lines through ``pandas.read_csv`` (None when there is no header)."""
+        if not self.ok.any():
+            return None
+        return pd.read_csv(io.StringIO(self.text()), **read_csv)
 
 
 class RunStore:
@@ -194,31 +286,88 @@ class RunStore:
         self.results_path = self.path / "results.csv"
         self.history_path = self.path / "history.csv"
         self.meta_path = self.path / "meta.json"
-        self.repaired = _repair_tail(self.results_path) + _repair_tail(self.history_path)
-        #: Lines set aside on open: ``(file, line number, reason)``.
+        #: Lines set aside under the lock: ``(file, line number, reason)``.
         self.corrupt: list[tuple[str, int, str]] = []
-        self._set_aside(self.results_path, "row_crc")
-        self._set_aside(self.history_path, None)
+        self._writing = False
+        if self._needs_repair():
+            try:
+                with RunLock(self.path / ".lock", repair=True):
+                    self._repair()
+            except (StoreLocked, OSError):
+                # a runner holds the lock (it repairs what it finds when it takes it), or the
+                # folder is read-only: change nothing, read what is complete
+                pass
 
-    def _set_aside(self, path: Path, checksum_column: Optional[str]) -> None:
-        """Move the bad lines of ``path`` to ``path.corrupt`` and rewrite it without them."""
-        if not path.exists() or path.stat().st_size == 0:
+    # ------------------------------------------------------------------ scans and repair
+    def _scan_results(self) -> Optional[_Scan]:
+        if not self.results_path.exists() or self.results_path.stat().st_size == 0:
+            return None
+        return _Scan(self.results_path, "row_crc")
+
+    def _scan_history(self, results: Optional[_Scan]) -> Optional[_Scan]:
+        """``history.csv``; its last line without newline is kept only when whole and when
+        its run has a result row (the history is written before its result row)."""
+        if not self.history_path.exists() or self.history_path.stat().st_size == 0:
+            return None
+
+        def finished(line: str) -> bool:
+            ids = {next(csv.reader([r]))[0] for r in results.good_lines()[1:]} \
+                if results else set()
+            return next(csv.reader([line]))[0] in ids
+
+        return _Scan(self.history_path, None, keep_tail=finished)
+
+    def _needs_repair(self) -> bool:
+        results = self._scan_results()
+        history = self._scan_history(results)
+        return any(scan is not None and scan.dirty for scan in (results, history))
+
+    def _repair(self) -> None:
+        """Set aside the bad lines of both files and end every kept line with its newline.
+
+        Call with the exclusive lock held: it rewrites the files.
+        """
+        results = self._scan_results()
+        self._rewrite(self.results_path, results)
+        self._rewrite(self.history_path, self._scan_history(results))
+
+    def _rewrite(self, path: Path, scan: Optional[_Scan]) -> None:
+        """Move the bad lines of ``path`` to ``path.corrupt`` and write it without them."""
+        if scan is None or not scan.dirty:
             return
-        good, bad = _scan(path, checksum_column)
-        if not bad:
-            return
-        with open(path, encoding="utf-8", newline="") as fh:
-            lines = fh.read().split("\n")
-        with open(str(path) + ".corrupt", "a", encoding="utf-8", newline="") as fh:
-            for i, _ in bad:
-                fh.write(lines[i - 1] + "\n")
-        atomic_write(path, "".join(line + "\n" for line in good))
-        self.corrupt += [(str(path), i, reason) for i, reason in bad]
+        if scan.bad:
+            with open(str(path) + ".corrupt", "a", encoding="utf-8", newline="") as fh:
+                fh.write("".join(text + "\n" for _, _, text in scan.bad))
+                fh.flush()
+                os.fsync(fh.fileno())
+        atomic_write(path, scan.text())
+        self.corrupt += [(str(path), i, reason) for i, reason, _ in scan.bad]
 
     # ------------------------------------------------------------------ lock
-    def lock(self) -> "RunLock":
-        """Exclusive writer lock on this folder (see :class:`RunLock`)."""
-        return RunLock(self.path / ".lock")
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[RunLock]:
+        """Exclusive writer lock on this folder (see :class:`RunLock`).
+
+        Taking it repairs the files (see the module docstring); while it is held,
+        this store's rewrites (:meth:`compact_history`) need no other lock.
+
+        Raises
+        ------
+        StoreLocked
+            If another runner holds the lock.
+        """
+        with RunLock(self.path / ".lock") as held:
+            self._writing = True
+            try:
+                self._repair()
+                yield held
+            finally:
+                self._writing = False
+
+    def _exclusive(self) -> contextlib.AbstractContextManager:
+        """The lock for one rewrite: none when this store holds the runner's lock."""
+        return contextlib.nullcontext() if self._writing else \
+            RunLock(self.path / ".lock", repair=True)
 
     # ------------------------------------------------------------------ meta
     def read_meta(self) -> Optional[dict]:
@@ -241,9 +390,10 @@ class RunStore:
         memory, a crash) is not done: a resume runs it once more. After a
         second such row it is done (the death is then the run's own).
         """
-        if not self.results_path.exists() or self.results_path.stat().st_size == 0:
+        scan = self._scan_results()
+        rows = scan.frame(usecols=["run_id", "status", "message"], dtype=str) if scan else None
+        if rows is None or rows.empty:
             return set()
-        rows = pd.read_csv(self.results_path, usecols=["run_id", "status", "message"], dtype=str)
         died = (rows["status"] == "failed") & rows["message"].fillna("").str.startswith(DIED_PREFIX)
         deaths = died.groupby(rows["run_id"]).sum()
         last_died = died.groupby(rows["run_id"]).last()
@@ -287,9 +437,16 @@ class RunStore:
     def _append_csv(path: Path, columns: list[str], rows: Iterable[tuple],
                     checksum: bool = False) -> None:
         buf = io.StringIO()
-        new = not path.exists() or path.stat().st_size == 0
-        if new:
+        size = path.stat().st_size if path.exists() else 0
+        if size == 0:
             csv.writer(buf, lineterminator="\n").writerow(columns)
+        else:
+            with open(path, "rb") as fh:
+                fh.seek(size - 1)
+                if fh.read(1) != b"\n":
+                    # never glue a row onto a line cut short: the cut line stays a line of its
+                    # own, set aside (or kept, if whole) by the next repair
+                    buf.write("\n")
         for r in rows:
             line = io.StringIO()
             csv.writer(line, lineterminator="").writerow([_one_line(v) for v in r])
@@ -301,29 +458,44 @@ class RunStore:
             os.fsync(fh.fileno())
 
     def results(self) -> pd.DataFrame:
-        """The latest row of every run (empty frame with the columns if none)."""
-        if not self.results_path.exists() or self.results_path.stat().st_size == 0:
+        """The latest row of every run (empty frame with the columns if none).
+
+        Only complete rows are read (see the module docstring); the file is not changed.
+        """
+        scan = self._scan_results()
+        res = scan.frame() if scan else None
+        if res is None:
             return pd.DataFrame(columns=RESULT_COLUMNS)
-        res = pd.read_csv(self.results_path)
         return res.drop_duplicates("run_id", keep="last").reset_index(drop=True)
+
+    def _history_frame(self) -> Optional[pd.DataFrame]:
+        scan = self._scan_history(self._scan_results())
+        return scan.frame(dtype={"run_id": str}) if scan else None
 
     def compact_history(self) -> int:
         """Rewrite ``history.csv`` with one block per finished run; returns rows dropped.
 
         Blocks of runs without a result row (interrupted attempts) and all but
         the last block of a run (earlier attempts) go; the runner calls this
-        under its lock before a resume.
+        under its lock before a resume. Called without that lock, it takes the
+        lock for the rewrite.
+
+        Raises
+        ------
+        StoreLocked
+            If a runner holds the lock (and it is not this store's).
         """
-        if not self.history_path.exists() or self.history_path.stat().st_size == 0:
-            return 0
-        h = pd.read_csv(self.history_path, dtype={"run_id": str})
-        kept = self._last_blocks(h)
-        dropped = len(h) - len(kept)
-        if dropped:
-            buf = io.StringIO()
-            kept.to_csv(buf, index=False, lineterminator="\n")
-            atomic_write(self.history_path, buf.getvalue())
-        return dropped
+        with self._exclusive():
+            h = self._history_frame()
+            if h is None:
+                return 0
+            kept = self._last_blocks(h)
+            dropped = len(h) - len(kept)
+            if dropped:
+                buf = io.StringIO()
+                kept.to_csv(buf, index=False, lineterminator="\n")
+                atomic_write(self.history_path, buf.getvalue())
+            return dropped
 
     def _last_blocks(self, h: pd.DataFrame) -> pd.DataFrame:
         ids = self.done_ids()
@@ -335,7 +507,11 @@ class RunStore:
         return h[block == last].reset_index(drop=True)
 
     def history(self) -> pd.DataFrame:
-        """Iterate rows of the runs that have a result row (latest attempt only)."""
-        if not self.history_path.exists() or self.history_path.stat().st_size == 0:
+        """Iterate rows of the runs that have a result row (latest attempt only).
+
+        Only complete lines are read; the file is not changed.
+        """
+        h = self._history_frame()
+        if h is None:
             return pd.DataFrame(columns=HISTORY_STORE_COLUMNS)
-        return self._last_blocks(pd.read_csv(self.history_path, dtype={"run_id": str}))
+        return self._last_blocks(h)
