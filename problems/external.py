@@ -92,6 +92,16 @@ class FclibParams(_FileParams):
 
 @register_problem("fclib", FclibParams)
 def fclib(p: FclibParams) -> list[LCP]:
-    """Normal-contact LCPs of FCLIB local frictional-contact problems (HDF5)."""
-    return [read_fclib_local(f, symmetrize_rtol=p.symmetrize_rtol)
-            for f in input_files(p.path, ("*.hdf5", "*.h5"), "FCLIB")]
+    """Normal-contact LCPs of FCLIB local frictional-contact problems (HDF5).
+
+    A folder's global problems, problems with equality constraints and non-symmetric or
+    indefinite normal blocks are skipped and listed in a warning, as for ``siconos``.
+    """
+    files = input_files(p.path, ("*.hdf5", "*.h5"), "FCLIB")
+
+    def read(f: Path) -> LCP:
+        return read_fclib_local(f, symmetrize_rtol=p.symmetrize_rtol)
+
+    if not Path(p.path).is_dir():
+        return [read(files[0])]
+    return read_supported(files, read, f"fclib:path={p.path}")

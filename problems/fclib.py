@@ -25,7 +25,7 @@ import scipy.sparse as sp
 
 from lcpbench import LCP
 
-from .formats import PathLike, symmetric_lcp
+from .formats import PathLike, UnsupportedProblem, symmetric_lcp
 
 __all__ = ["read_fclib_local", "write_fclib_local", "FCLIB_DEFAULT_SYMMETRIZE_RTOL"]
 
@@ -108,12 +108,17 @@ def read_fclib_local(path: PathLike, *,
         if "fclib_local" not in f:
             kind = ("a global problem (/fclib_global)" if "fclib_global" in f
                     else f"groups {sorted(f.keys())}")
+            if "fclib_global" in f:
+                raise UnsupportedProblem(f"{p}: not an FCLIB local problem (a global problem, "
+                                         "/fclib_global); lcpbench imports local ones only",
+                                         "FCLIB global problem")
             raise ValueError(f"{p}: not an FCLIB local problem (no /fclib_local; found {kind})")
         g = f["fclib_local"]
         where = f"{p}: /fclib_local"
         if "V" in g or "R" in g:
-            raise ValueError(f"{where} has equality constraints (V, R); its normal block is "
-                             "not a plain LCP, so lcpbench does not import it")
+            raise UnsupportedProblem(f"{where} has equality constraints (V, R); its normal "
+                                     "block is not a plain LCP, so lcpbench does not import it",
+                                     "equality constraints")
         d = _h5_scalar_int(g, "spacedim", where)
         if d not in (2, 3):
             raise ValueError(f"{where}/spacedim is {d}; FCLIB uses 2 or 3")

@@ -268,3 +268,27 @@ def test_plugins(tmp_path):
     assert len(lcps) == 1 and lcps[0].n == 4 and lcps[0].meta["family"] == "fclib"
     with pytest.raises(FileNotFoundError, match="no FCLIB files"):
         info.func(make_params("fclib", info.params, {"path": str(folder)}))
+
+
+def test_fclib_folder_skips_and_lists_what_it_cannot_import(tmp_path):
+    """A folder of FCLIB files is read as far as it goes, like a Siconos folder: a global
+    problem, one with equality constraints and a non-symmetric one are skipped and listed."""
+    W, q, mu = delassus(4, 4, 3)
+    ex.write_fclib_local(tmp_path / "a_ok.hdf5", W, q, mu, 3)
+    vr = ex.write_fclib_local(tmp_path / "b_vr.hdf5", W, q, mu, 3)
+    with h5py.File(vr, "a") as f:
+        f.create_group("fclib_local/V")
+    with h5py.File(tmp_path / "c_global.hdf5", "w") as f:
+        f.create_group("fclib_global")
+    E = np.zeros_like(W)
+    E[0, 3] = 1e-2 * np.abs(W).max()
+    ex.write_fclib_local(tmp_path / "d_nonsym.hdf5", W + E, q, mu, 3)
+    ex.write_fclib_local(tmp_path / "e_ok.hdf5", 2 * W, q, mu, 3)
+    info = get_problem("fclib")
+    with pytest.warns(UserWarning, match=r"skipped 3 of 5 files.*b_vr\.hdf5 \(equality "
+                      r"constraints\).*c_global\.hdf5 \(FCLIB global problem\).*d_nonsym"):
+        lcps = info.func(make_params("fclib", info.params, {"path": str(tmp_path)}))
+    assert [lcp.name for lcp in lcps] == ["fclib/a_ok", "fclib/e_ok"]
+    np.testing.assert_array_equal(lcps[1].dense(), 2 * W[np.ix_([0, 3, 6, 9], [0, 3, 6, 9])])
+    with pytest.raises(ValueError, match="equality constraints"):     # one file: an error
+        info.func(make_params("fclib", info.params, {"path": str(vr)}))
