@@ -192,3 +192,29 @@ def _interrupted_wait(pid_file: str) -> str:
 def test_an_interrupted_wait_kills_its_child(tmp_path):
     # Ctrl-C while the runner waits on a reference: the child must not outlive the wait.
     assert _within_guard(_interrupted_wait, str(tmp_path / "pid")) == "gone"
+
+
+def test_time_running_out_inside_a_backend_is_a_timeout_not_a_retry(monkeypatch):
+    # The solve's own timer (or the operator's budget check) ending the time budget while a
+    # backend runs must end the solve as timeout, not count as a backend failure that is
+    # retried at a looser tolerance.
+    from lcpbench.core.operator import BudgetExhausted
+
+    calls = []
+
+    def out_of_time(A, b, backend, tol, *args, **kwargs):
+        calls.append(tol)
+        raise BudgetExhausted("time budget of 1 s exhausted", kind="time")
+
+    monkeypatch.setattr(qp, "solve_nonneg_qp", out_of_time)
+    res = lcpbench.solve(_hanging_lcp(), solver="osqp", max_seconds=1.0)
+    assert res.status == Status.timeout and calls == [1e-10]
+
+
+def test_time_limits_that_are_not_positive_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="max_seconds must be > 0"):
+        lcpbench.reference(_hanging_lcp(), max_seconds=0)
+    sweep = Sweep(solvers=["bb-pgd"], problems=[HANGING])
+    with pytest.raises(ValueError, match="reference_timeout must be > 0 seconds, got -1"):
+        execute(plan(sweep), RunStore(tmp_path), quiet=True, reference_timeout=-1)
+    assert not (tmp_path / "results.csv").exists()

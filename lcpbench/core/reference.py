@@ -121,7 +121,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
     if max_seconds is None:
         max_seconds = default_reference_seconds(lcp.n)
     elif not max_seconds > 0:
-        raise ValueError(f"max_seconds must be > 0 (or math.inf for no limit), got {max_seconds!r}")
+        raise ValueError(f"max_seconds must be > 0 (math.inf: no limit), got {max_seconds!r}")
     A = lcp.dense()
     b = lcp.b
     n = lcp.n

@@ -305,6 +305,8 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     from lcpbench.run.executors import make_executor
 
+    if reference_timeout is not None and not reference_timeout > 0:
+        raise ValueError(f"reference_timeout must be > 0 seconds, got {reference_timeout!r}")
     kind = executor or ("process" if jobs > 1 else "local")
     runner = make_executor(kind, jobs, timeout, scheduler)
     for path, line, reason in store.corrupt:
