@@ -79,6 +79,22 @@ def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
     return float(np.linalg.norm(w1 - w2) / max(1.0, np.linalg.norm(w1), np.linalg.norm(w2)))
 
 
+def _backend_answer(A: np.ndarray, b: np.ndarray, name: str, tol: float, polish: bool,
+                    limit: Optional[float], sols: dict) -> dict:
+    """One backend's answer, added to ``sols`` when it has one; its ``details`` entry."""
+    timed_out = False
+    try:
+        x, msg, _ = solve_and_refine(A, b, name, tol, polish=polish,
+                                     refine_steps=3 if polish else 0, max_seconds=limit)
+    except QPTimeout as exc:
+        x, msg, timed_out = None, str(exc), True
+    if x is not None:
+        w = A @ x + b
+        sols[name] = (x, w, kkt_abs(x, w))
+    return {"message": msg, "timeout": timed_out,
+            "kkt_abs": sols[name][2] if name in sols else float("nan")}
+
+
 def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp"),
               tol: float = 1e-10, polish: bool = True, rtol: float = AGREE_RTOL, *,
               max_seconds: Optional[float] = None) -> Reference:
@@ -137,17 +153,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
         A = (A + A.T) / 2
     limit = None if math.isinf(max_seconds) else float(max_seconds)
     for name in backends:
-        timed_out = False
-        try:
-            x, msg, _ = solve_and_refine(A, b, name, tol, polish=polish,
-                                         refine_steps=3 if polish else 0, max_seconds=limit)
-        except QPTimeout as exc:
-            x, msg, timed_out = None, str(exc), True
-        if x is not None:
-            w = A @ x + b
-            sols[name] = (x, w, kkt_abs(x, w))
-        details[name] = {"message": msg, "timeout": timed_out,
-                         "kkt_abs": sols[name][2] if name in sols else float("nan")}
+        details[name] = _backend_answer(A, b, name, tol, polish, limit, sols)
     if not sols:
         raise RuntimeError(f"no reference backend solved {lcp.name!r}: "
                            + "; ".join(details[nm]["message"] for nm in backends))

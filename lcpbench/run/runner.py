@@ -274,6 +274,30 @@ def remote_work(run: RunSpec, timeout: Optional[float] = None,
     return _safe_perform(run, lcps[run.instance], refs[run.instance], timeout)
 
 
+def _reference_seconds(timeout: Optional[float],
+                       reference_timeout: Optional[float]) -> Optional[float]:
+    """The backend limit of the consensus references: ``reference_timeout``, else ``timeout``."""
+    if reference_timeout is None:
+        return timeout
+    if not reference_timeout > 0:
+        raise ValueError(f"reference_timeout must be > 0 seconds, got {reference_timeout!r}")
+    return float(reference_timeout)
+
+
+class _InstanceReferences:
+    """Each instance's reference, computed once (bounded, isolated: :func:`instance_reference`)."""
+
+    def __init__(self, p: Plan, max_n: int, seconds: Optional[float]):
+        self.plan, self.max_n, self.seconds = p, max_n, seconds
+        self.refs: dict[tuple, Optional[dict]] = {}
+
+    def __call__(self, run: RunSpec) -> Optional[dict]:
+        key = (_problem_key(run.problem), run.instance)
+        if key not in self.refs:
+            self.refs[key] = instance_reference(self.plan.lcp(run), self.max_n, self.seconds)
+        return self.refs[key]
+
+
 def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: int = 1,
             timeout: Optional[float] = None, scheduler: Optional[str] = None,
             quiet: bool = False, reference_max_n: int = REFERENCE_MAX_N,
@@ -305,8 +329,8 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     from lcpbench.run.executors import make_executor
 
-    if reference_timeout is not None and not reference_timeout > 0:
-        raise ValueError(f"reference_timeout must be > 0 seconds, got {reference_timeout!r}")
+    ref_seconds = _reference_seconds(timeout, reference_timeout)
+    ref_of = _InstanceReferences(p, reference_max_n, ref_seconds)
     kind = executor or ("process" if jobs > 1 else "local")
     runner = make_executor(kind, jobs, timeout, scheduler)
     for path, line, reason in store.corrupt:
@@ -317,14 +341,6 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     todo = [r for r in p.runs if r.run_id not in done]
     counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
               "timeout": 0, "false_convergence": 0}
-    refs: dict[tuple, Optional[dict]] = {}
-    ref_seconds = timeout if reference_timeout is None else reference_timeout
-
-    def ref_of(run: RunSpec) -> Optional[dict]:
-        key = (_problem_key(run.problem), run.instance)
-        if key not in refs:
-            refs[key] = instance_reference(p.lcp(run), reference_max_n, ref_seconds)
-        return refs[key]
 
     def local_work(run: RunSpec):
         return _safe_perform(run, p.lcp(run), ref_of(run), timeout)
