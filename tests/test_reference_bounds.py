@@ -219,3 +219,50 @@ def test_time_limits_that_are_not_positive_are_refused(tmp_path):
     with pytest.raises(ValueError, match="reference_timeout must be > 0 seconds, got -1"):
         execute(plan(sweep), RunStore(tmp_path), quiet=True, reference_timeout=-1)
     assert not (tmp_path / "results.csv").exists()
+
+
+def _running(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie waiting to be reaped has ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _orphaned_backend(pid_file: str) -> str:
+    """A backend call whose parent is SIGKILLed must not run on without it."""
+    lcp = _hanging_lcp()
+    A, b = lcp.dense(), lcp.b
+
+    def parent():                       # e.g. a run's child, the backend in a grandchild
+        return qp.solve_nonneg_qp(A, b, "proxqp", 1e-10, max_seconds=2.0)
+
+    kind, _ = call_with_deadline(parent, (), 0.5)      # the parent is killed at 0.5 s
+    assert kind == "timeout"
+    deadline = time.monotonic() + 10.0
+    while not os.path.exists(pid_file) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    backend = int(open(pid_file).read())
+    time.sleep(2.0 + qp.ORPHAN_SLACK_S + 1.0)           # past the backend's limit and slack
+    if not _running(backend):
+        return "gone"
+    os.kill(backend, signal.SIGKILL)
+    return "left running"
+
+
+def _noting_pid(pid_file):
+    real = qp._solve_here
+
+    def solve_here(*args):
+        with open(pid_file, "w") as fh:
+            fh.write(str(os.getpid()))
+        return real(*args)
+
+    return solve_here
+
+
+def test_a_backend_whose_parent_is_killed_ends_at_its_limit(tmp_path, monkeypatch):
+    pid_file = str(tmp_path / "pid")
+    monkeypatch.setattr(qp, "_solve_here", _noting_pid(pid_file))
+    assert _within_guard(_orphaned_backend, pid_file) == "gone"

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import signal
 import sys
 import time
 import warnings
@@ -49,6 +50,11 @@ TIME_LIMIT_OPTION = {"clarabel": "time_limit", "proxqp": None, "osqp": "time_lim
 #: Share of ``max_seconds`` handed to a backend's own time limit, so that it stops
 #: cleanly before the child running it is killed at ``max_seconds``.
 OWN_LIMIT_SHARE = 0.9
+
+
+#: A forked backend call ends itself this many seconds after its limit if its parent,
+#: which kills it at the limit, is gone.
+ORPHAN_SLACK_S = 1.0
 
 
 class QPTimeout(TimeoutError):
@@ -128,13 +134,31 @@ def solve_nonneg_qp(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-
 
     from lcpbench.run.executors import call_with_deadline
 
-    kind, value = call_with_deadline(_solve_here, (A, b, backend, tol, x0, max_seconds),
+    kind, value = call_with_deadline(_solve_in_child, (A, b, backend, tol, x0, max_seconds),
                                      max_seconds)
     if kind == "ok":
         return value
     if kind == "timeout":
         raise QPTimeout(f"{backend}: killed at its time limit of {max_seconds:.3g} s", tol)
     return None, f"{backend}: {value}"
+
+
+def _solve_in_child(A: np.ndarray, b: np.ndarray, backend: str, tol: float,
+                    x0: Optional[np.ndarray], max_seconds: float
+                    ) -> tuple[Optional[np.ndarray], str]:
+    """:func:`_solve_here` in the forked child, which ends itself if its parent cannot.
+
+    The parent kills the child at ``max_seconds``; should the parent be killed
+    first (``kill -9`` of the runner, or of a run's own child), the child's
+    ``SIGALRM`` at its default action ends it :data:`ORPHAN_SLACK_S` later,
+    inside compiled code too, so no backend outlives its limit.
+    """
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.setitimer(signal.ITIMER_REAL, max_seconds + ORPHAN_SLACK_S)
+    try:
+        return _solve_here(A, b, backend, tol, x0, max_seconds)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
 
 
 def _solve_here(A: np.ndarray, b: np.ndarray, backend: str, tol: float,
