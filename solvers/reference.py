@@ -26,6 +26,12 @@ loosens it). The backends' answers at
 is why the active-set polish and refinement are on by default: with them the
 verified residual is below 1e-9 on every instance except OSQP on the
 ``spd-cond`` instance with condition number 1e10 (wrong active set).
+
+Time: the backend runs in a forked child killed at the solve's ``max_seconds``
+(what the budget has left), or, when the budget sets none, at
+:func:`lcpbench.core.reference.default_reference_seconds` of ``n`` (10 s for
+small problems), so a backend that never returns (ProxQP runs for many minutes
+on some 2 x 2 infeasible problems) ends the solve as ``timeout`` at the start.
 """
 
 from __future__ import annotations
@@ -35,7 +41,8 @@ from typing import Callable
 
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
-from lcpbench.toolkit.qp import solve_and_refine
+from lcpbench.core.reference import default_reference_seconds
+from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 from lcpbench.core.result import SolveResult, Status
 
 __all__ = ["DEFAULT_TOLERANCES", "make_reference_solver"]
@@ -80,6 +87,24 @@ def _validate(self) -> None:
         raise ValueError(f"refine_steps must be an integer >= 0, got {self.refine_steps!r}")
 
 
+def _time_limit(ctx: SolverContext) -> tuple[float, str]:
+    """Seconds the backend may take, and where the limit comes from (for the message)."""
+    if ctx.budget.max_seconds is not None:
+        return ctx.budget.max_seconds - ctx.elapsed(), \
+            f"time budget of {ctx.budget.max_seconds:g} s"
+    seconds = default_reference_seconds(ctx.n)
+    return seconds, (f"the reference solvers' default limit of {seconds:g} s at n = {ctx.n}; "
+                     "set max_seconds (--timeout) to change it")
+
+
+def _report_start(ctx: SolverContext):
+    """The start reported as the answer: free at x0 = 0, one MVP for a warm start."""
+    x0 = ctx.x0
+    w0 = ctx.A @ x0 + ctx.b
+    ctx.report(x0, w0)
+    return x0, w0
+
+
 def make_reference_solver(backend: str, default_tol: float) -> Callable:
     """Register the reference solver ``backend`` (a key of :data:`lcpbench.toolkit.qp.QP_BACKENDS`).
 
@@ -103,13 +128,18 @@ def make_reference_solver(backend: str, default_tol: float) -> Callable:
     params.__qualname__ = cls_name
 
     def solve(ctx: SolverContext, p) -> SolveResult:
-        x, message, tol = solve_and_refine(ctx.dense, ctx.b, backend, p.tol, retries=p.retries,
-                                           polish=p.polish, refine_steps=p.refine_steps)
+        seconds, why = _time_limit(ctx)
+        try:
+            x, message, tol = solve_and_refine(ctx.dense, ctx.b, backend, p.tol,
+                                               retries=p.retries, polish=p.polish,
+                                               refine_steps=p.refine_steps, max_seconds=seconds)
+        except QPTimeout as exc:
+            ctx.info["tol_used"] = exc.tol
+            x0, w0 = _report_start(ctx)
+            return ctx.finish(x0, w0, Status.timeout, f"{exc} ({why})")
         ctx.info["tol_used"] = tol
         if x is None:
-            x0 = ctx.x0  # the start as the answer: free at x0 = 0, one MVP for a warm start
-            w0 = ctx.A @ x0 + ctx.b
-            ctx.report(x0, w0)
+            x0, w0 = _report_start(ctx)
             return ctx.finish(x0, w0, Status.failed,
                               f"{message} (tolerances {p.tol:g} to {tol:g} tried)")
         w = ctx.A @ x + ctx.b
@@ -131,7 +161,10 @@ def make_reference_solver(backend: str, default_tol: float) -> Callable:
         f"    MVP: 1 MVP per solve in total.\n"
         f"    One iterate is reported (the answer); the warm start is not used by the\n"
         f"    backends. A backend failure (after ``retries`` looser tolerances) ends\n"
-        f"    the solve as ``failed`` with the backend's message, at the starting point.\n")
+        f"    the solve as ``failed`` with the backend's message, at the starting point;\n"
+        f"    a backend still running at the time limit (the budget's ``max_seconds``,\n"
+        f"    else the default of :func:`lcpbench.core.reference.default_reference_seconds`)\n"
+        f"    is killed and the solve ends as ``timeout`` at the starting point.\n")
     solve.__module__ = __name__
     return register_solver(backend, params, needs_dense=True, reference=True)(solve)
 

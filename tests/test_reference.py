@@ -82,7 +82,7 @@ def test_backend_failure_is_failed(monkeypatch):
     lcp = generate("planted")[0]
     calls = []
 
-    def fail(A, b, backend, tol):
+    def fail(A, b, backend, tol, **limits):
         calls.append(tol)
         return None, f"{backend}: no solution (x)"
 

@@ -52,7 +52,9 @@ def add_run_parser(sub) -> None:
                                                  "under reports/)")
     p.add_argument("--jobs", type=int, default=1, help="parallel worker processes (>= 1)")
     p.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
-                   help="per-run wall-time limit; a run over it is recorded as timeout")
+                   help="per-run wall-time limit; a run over it is recorded as timeout. "
+                        "Each QP backend of an instance's reference gets it too (without "
+                        "it: 10 s + 20 s x (n/1000)^3), in a child killed at the limit")
     p.add_argument("--force", action="store_true",
                    help="run into a DIR whose stored configuration differs")
     p.add_argument("--no-report", action="store_true", help="do not render report.html")

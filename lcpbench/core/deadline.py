@@ -10,6 +10,12 @@ reported iterate. The timer is set a little after the budget so that the
 ordinary checks win when they can. Only in the main thread, and only when no
 other interval timer is running (it is never taken from its owner); elsewhere
 the runner's process timeout is the backstop.
+
+The timer reaches Python code only: a compiled loop that never returns to the
+interpreter (a QP backend such as ProxQP) does not see it. Such calls run in a
+forked child killed at the limit instead (:func:`lcpbench.toolkit.qp.solve_nonneg_qp`
+with ``max_seconds``, through :func:`lcpbench.run.executors.call_with_deadline`),
+and end before this timer would fire.
 """
 
 from __future__ import annotations

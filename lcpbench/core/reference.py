@@ -2,19 +2,40 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
 from lcpbench.core.lcp import LCP
-from lcpbench.toolkit.qp import solve_and_refine
+from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 from lcpbench.core.residuals import kkt_abs, objective
 
-__all__ = ["Reference", "reference", "AGREE_RTOL"]
+__all__ = ["Reference", "reference", "AGREE_RTOL", "default_reference_seconds",
+           "REFERENCE_BASE_SECONDS", "REFERENCE_SECONDS_PER_GIGAFLOP"]
 
 #: Two backends agree when their w differ by at most this, relative to max(1, ||w||).
 AGREE_RTOL = 1e-8
+
+#: The default time limit of one reference backend is this many seconds ...
+REFERENCE_BASE_SECONDS = 10.0
+#: ... plus this many seconds per (n / 1000)^3: the backends' dense factorisations grow
+#: as n^3. Measured on a loaded 2-core machine (SPD A, tolerance 1e-10): Clarabel, the
+#: slowest, took 0.3 s at n = 300, 4.4 s at n = 1000 and 28 s at n = 2000, against
+#: default limits of 10.5 s, 30 s and 170 s.
+REFERENCE_SECONDS_PER_GIGAFLOP = 20.0
+
+
+def default_reference_seconds(n: int) -> float:
+    """The time limit of one reference backend on an ``n x n`` problem when none is given.
+
+    ``REFERENCE_BASE_SECONDS + REFERENCE_SECONDS_PER_GIGAFLOP * (n / 1000)^3``:
+    10 s for small problems (which take well under a second unless the backend
+    is stuck), 30 s at n = 1000, 550 s at n = 3000 (the runner's largest
+    consensus reference).
+    """
+    return REFERENCE_BASE_SECONDS + REFERENCE_SECONDS_PER_GIGAFLOP * (max(int(n), 0) / 1000) ** 3
 
 
 @dataclass
@@ -58,8 +79,25 @@ def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
     return float(np.linalg.norm(w1 - w2) / max(1.0, np.linalg.norm(w1), np.linalg.norm(w2)))
 
 
+def _backend_answer(A: np.ndarray, b: np.ndarray, name: str, tol: float, polish: bool,
+                    limit: Optional[float], sols: dict) -> dict:
+    """One backend's answer, added to ``sols`` when it has one; its ``details`` entry."""
+    timed_out = False
+    try:
+        x, msg, _ = solve_and_refine(A, b, name, tol, polish=polish,
+                                     refine_steps=3 if polish else 0, max_seconds=limit)
+    except QPTimeout as exc:
+        x, msg, timed_out = None, str(exc), True
+    if x is not None:
+        w = A @ x + b
+        sols[name] = (x, w, kkt_abs(x, w))
+    return {"message": msg, "timeout": timed_out,
+            "kkt_abs": sols[name][2] if name in sols else float("nan")}
+
+
 def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp"),
-              tol: float = 1e-10, polish: bool = True, rtol: float = AGREE_RTOL) -> Reference:
+              tol: float = 1e-10, polish: bool = True, rtol: float = AGREE_RTOL, *,
+              max_seconds: Optional[float] = None) -> Reference:
     """Ground truth for ``lcp`` from the reference QP solvers.
 
     Each backend solves ``min 1/2 x'Ax + b'x, x >= 0`` on the dense matrix
@@ -81,7 +119,25 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
     beside ``details['operator_rtol']``. The reference then solves the
     symmetrised matrix; its residual for a fresh product of the operator is
     within the operator's accuracy of ``kkt_abs``.
+
+    Every backend is held to ``max_seconds`` (its retries together; default
+    :func:`default_reference_seconds` of ``n``, ``math.inf`` for no limit): it
+    runs in a forked child that is killed then
+    (:func:`lcpbench.toolkit.qp.solve_nonneg_qp`), so a backend that never
+    returns (ProxQP on some infeasible problems) costs at most that and the
+    others still decide; ``details[name]["timeout"]`` is then True. The whole
+    call takes at most about ``len(backends) * max_seconds`` plus the dense
+    polish.
+
+    Raises
+    ------
+    RuntimeError
+        When no backend solved the problem (each backend's message included).
     """
+    if max_seconds is None:
+        max_seconds = default_reference_seconds(lcp.n)
+    elif not max_seconds > 0:
+        raise ValueError(f"max_seconds must be > 0 (math.inf: no limit), got {max_seconds!r}")
     A = lcp.dense()
     b = lcp.b
     n = lcp.n
@@ -95,14 +151,9 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
         details["asymmetry"] = float(np.max(np.abs(A - A.T))) / scale if scale > 0 else 0.0
         details["operator_rtol"] = float(lcp.A.rtol)
         A = (A + A.T) / 2
+    limit = None if math.isinf(max_seconds) else float(max_seconds)
     for name in backends:
-        x, msg, _ = solve_and_refine(A, b, name, tol, polish=polish,
-                                     refine_steps=3 if polish else 0)
-        if x is not None:
-            w = A @ x + b
-            sols[name] = (x, w, kkt_abs(x, w))
-        details[name] = {"message": msg,
-                         "kkt_abs": sols[name][2] if name in sols else float("nan")}
+        details[name] = _backend_answer(A, b, name, tol, polish, limit, sols)
     if not sols:
         raise RuntimeError(f"no reference backend solved {lcp.name!r}: "
                            + "; ".join(details[nm]["message"] for nm in backends))

@@ -133,11 +133,19 @@ def call_with_deadline(fn: Callable, args: tuple, timeout: Optional[float]):
 
     ``kind`` is ``ok`` (``value`` is the result), ``error`` (the exception's
     text), ``timeout`` or ``died``. For work the parent must not wait on
-    unboundedly, such as an instance's reference solve.
+    unboundedly, such as an instance's reference solve. If the wait itself is
+    interrupted (Ctrl-C, a timer's exception), the child is killed before the
+    exception goes on: compiled code that ignores signals is never left running.
     """
     call = ForkedCall(fn, args, None if timeout is None else time.monotonic() + timeout)
-    while not call.poll(wait=0.05):
-        pass
+    try:
+        while not call.poll(wait=0.05):
+            pass
+    except BaseException:
+        if not call.done:
+            os.kill(call.pid, signal.SIGKILL)
+            call._reap(timeout=True)
+        raise
     return call.result
 
 

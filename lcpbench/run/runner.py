@@ -4,9 +4,11 @@ Every run is verified by the framework (one uncounted product, inside
 :func:`lcpbench.core.api.run_solver`) and compared with the instance's reference
 when one exists: a stored one (planted solutions, stored sets) or the
 consensus of the QP solvers (:func:`lcpbench.reference`) for explicit
-matrices up to ``reference_max_n``, computed under the same timeout and in a
-forked child like a run (a reference that fails or hangs is recorded in the
-rows' ``ref_solvers``, not waited for).
+matrices up to ``reference_max_n``, always in a forked child and under a time
+limit, whether or not the sweep has a timeout: each backend gets the per-run
+timeout, or without one :func:`lcpbench.core.reference.default_reference_seconds`
+(a reference that fails or hangs is recorded in the rows' ``ref_solvers``, not
+waited for; the rows are written all the same).
 
 Execution is delegated to an executor (:mod:`lcpbench.run.executors`): in this
 process, in forked children (at most ``jobs`` at a time, each inheriting the
@@ -32,6 +34,7 @@ import pandas as pd
 from lcpbench.core.api import run_solver
 from lcpbench.core.context import Budget
 from lcpbench.core.lcp import LCP
+from lcpbench.core.reference import default_reference_seconds
 from lcpbench.core.reference import reference as consensus_reference
 from lcpbench.core.registry import get_problem, get_solver
 from lcpbench.core.specs import make_params
@@ -44,6 +47,8 @@ __all__ = ["Plan", "plan", "result_fields", "execute", "perform", "instance_refe
 
 #: Consensus references are computed for explicit instances up to this size.
 REFERENCE_MAX_N = 3000
+#: QP backends of the consensus (each held to the reference time limit in turn).
+REFERENCE_BACKENDS = ("clarabel", "proxqp", "osqp")
 
 
 @dataclass
@@ -98,11 +103,15 @@ def instance_reference(lcp: LCP, max_n: int = REFERENCE_MAX_N,
                        timeout: Optional[float] = None) -> Optional[dict]:
     """The reference of an instance: stored, else the QP consensus for explicit A.
 
-    The consensus runs in a forked child under ``timeout`` (the per-run limit),
-    so a reference backend that hangs cannot stall the sweep. A reference that
-    fails, dies or times out is recorded as ``{"failed": reason}`` (the runs of
-    the instance then carry the reason in ``ref_solvers``) instead of being
-    waited for. None: the instance gets no reference (matrix-free or too large).
+    The consensus always runs in a forked child. Each of its backends is held
+    to ``timeout`` seconds (default :func:`default_reference_seconds` of ``n``,
+    10 s for small problems: a backend still running then is killed and the
+    others decide), and the child is killed after ``(backends + 1) * timeout``
+    (the backends plus their dense polish), so neither a backend that never
+    returns nor a stuck polish can stall the sweep. A reference that fails,
+    dies or times out is recorded as ``{"failed": reason}`` (the runs of the
+    instance then carry the reason in ``ref_solvers``) instead of being waited
+    for. None: the instance gets no reference (matrix-free or too large).
     """
     if lcp.reference is not None:
         ref = dict(lcp.reference)
@@ -110,21 +119,21 @@ def instance_reference(lcp: LCP, max_n: int = REFERENCE_MAX_N,
         return ref
     if not lcp.A.explicit or lcp.n > max_n:
         return None
-    if timeout is None:
-        try:
-            return consensus_reference(lcp).as_dict()
-        except RuntimeError as exc:
-            return {"failed": str(exc)}
-    kind, value = call_with_deadline(_consensus_dict, (lcp,), timeout)
+    seconds = default_reference_seconds(lcp.n) if timeout is None else float(timeout)
+    whole = (len(REFERENCE_BACKENDS) + 1) * seconds
+    kind, value = call_with_deadline(_consensus_dict, (lcp, seconds), whole)
     if kind == "ok":
         return value
     if kind == "timeout":
-        return {"failed": f"reference solve killed after {timeout:g} s"}
+        return {"failed": f"reference solve killed after {whole:g} s"}
     return {"failed": f"reference solve failed: {value}"}
 
 
-def _consensus_dict(lcp: LCP) -> dict:
-    return consensus_reference(lcp).as_dict()
+def _consensus_dict(lcp: LCP, seconds: float) -> dict:
+    try:
+        return consensus_reference(lcp, REFERENCE_BACKENDS, max_seconds=seconds).as_dict()
+    except RuntimeError as exc:          # no backend solved it: a reason, not an error
+        return {"failed": str(exc)}
 
 
 def _rel(a: np.ndarray, b: np.ndarray) -> float:
@@ -245,11 +254,13 @@ _WORKER_CACHE: dict = {}
 
 
 def remote_work(run: RunSpec, timeout: Optional[float] = None,
-                reference_max_n: int = REFERENCE_MAX_N):
+                reference_max_n: int = REFERENCE_MAX_N,
+                reference_timeout: Optional[float] = None):
     """One run from its spec alone (for workers that do not share the planner's memory).
 
     The instance is regenerated from the problem spec (deterministic by seed)
     and cached per worker process with its reference, so no matrix travels.
+    ``reference_timeout`` as in :func:`execute`.
     """
     key = _problem_key(run.problem)
     if key not in _WORKER_CACHE:
@@ -257,13 +268,40 @@ def remote_work(run: RunSpec, timeout: Optional[float] = None,
         _WORKER_CACHE[key] = (generate(run.problem), {})
     lcps, refs = _WORKER_CACHE[key]
     if run.instance not in refs:
-        refs[run.instance] = instance_reference(lcps[run.instance], reference_max_n, timeout)
+        refs[run.instance] = instance_reference(
+            lcps[run.instance], reference_max_n,
+            timeout if reference_timeout is None else reference_timeout)
     return _safe_perform(run, lcps[run.instance], refs[run.instance], timeout)
+
+
+def _reference_seconds(timeout: Optional[float],
+                       reference_timeout: Optional[float]) -> Optional[float]:
+    """The backend limit of the consensus references: ``reference_timeout``, else ``timeout``."""
+    if reference_timeout is None:
+        return timeout
+    if not reference_timeout > 0:
+        raise ValueError(f"reference_timeout must be > 0 seconds, got {reference_timeout!r}")
+    return float(reference_timeout)
+
+
+class _InstanceReferences:
+    """Each instance's reference, computed once (bounded, isolated: :func:`instance_reference`)."""
+
+    def __init__(self, p: Plan, max_n: int, seconds: Optional[float]):
+        self.plan, self.max_n, self.seconds = p, max_n, seconds
+        self.refs: dict[tuple, Optional[dict]] = {}
+
+    def __call__(self, run: RunSpec) -> Optional[dict]:
+        key = (_problem_key(run.problem), run.instance)
+        if key not in self.refs:
+            self.refs[key] = instance_reference(self.plan.lcp(run), self.max_n, self.seconds)
+        return self.refs[key]
 
 
 def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: int = 1,
             timeout: Optional[float] = None, scheduler: Optional[str] = None,
             quiet: bool = False, reference_max_n: int = REFERENCE_MAX_N,
+            reference_timeout: Optional[float] = None,
             on_row: Optional[Callable[[dict], None]] = None) -> dict:
     """Run every planned run that has no row yet; returns counts.
 
@@ -277,6 +315,11 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
         Parallel runs (processes or LocalCluster workers).
     timeout : float, optional
         Per-run seconds; a run over it is stopped and recorded as ``timeout``.
+    reference_timeout : float, optional
+        Seconds each QP backend of an instance's consensus reference may take
+        (see :func:`instance_reference`). Default: ``timeout``, and without one
+        :func:`~lcpbench.core.reference.default_reference_seconds` of ``n``;
+        the reference is bounded and isolated either way.
     scheduler : str, optional
         Dask scheduler address (``dask`` executor only).
     """
@@ -286,6 +329,8 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 
     from lcpbench.run.executors import make_executor
 
+    ref_seconds = _reference_seconds(timeout, reference_timeout)
+    ref_of = _InstanceReferences(p, reference_max_n, ref_seconds)
     kind = executor or ("process" if jobs > 1 else "local")
     runner = make_executor(kind, jobs, timeout, scheduler)
     for path, line, reason in store.corrupt:
@@ -296,23 +341,17 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     todo = [r for r in p.runs if r.run_id not in done]
     counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
               "timeout": 0, "false_convergence": 0}
-    refs: dict[tuple, Optional[dict]] = {}
-
-    def ref_of(run: RunSpec) -> Optional[dict]:
-        key = (_problem_key(run.problem), run.instance)
-        if key not in refs:
-            refs[key] = instance_reference(p.lcp(run), reference_max_n, timeout)
-        return refs[key]
 
     def local_work(run: RunSpec):
         return _safe_perform(run, p.lcp(run), ref_of(run), timeout)
 
     if kind == "dask":
-        work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n)
+        work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n,
+                       reference_timeout=reference_timeout)
     else:
         work = local_work
-        for run in todo:        # references before the runs (each under the run timeout, in a
-            ref_of(run)         # child of its own), so the runs' children inherit them
+        for run in todo:        # references before the runs (each bounded, in a child of its
+            ref_of(run)         # own), so the runs' children inherit them
 
     bar = tqdm(total=len(todo), disable=quiet, unit="run", desc="lcpbench run", file=sys.stderr)
 

@@ -5,21 +5,35 @@ qpsolvers was chosen because it gives one interface to the three independent
 interior-point / ADMM / augmented-Lagrangian codes the suite uses as ground
 truth (Clarabel, ProxQP, OSQP), so disagreements come from the methods and
 not from glue code.
+
+Time limits: a backend is a compiled loop that Python's signal handlers cannot
+interrupt (ProxQP has no time limit of its own and, on some infeasible
+problems, runs its 10^5 outer iterations for many minutes). Given
+``max_seconds``, :func:`solve_nonneg_qp` therefore hands the backend its own
+limit where it has one (Clarabel's and OSQP's ``time_limit``) and runs the call
+in a forked child that is killed at ``max_seconds``
+(:func:`lcpbench.run.executors.call_with_deadline`, the runner's own
+mechanism); either way the caller gets :class:`QPTimeout`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import signal
 import sys
+import time
 import warnings
 from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["QP_BACKENDS", "solve_nonneg_qp", "polish_active_set", "refine_active_set",
-           "solve_and_refine"]
+from lcpbench.core.operator import BudgetExhausted
+
+__all__ = ["QP_BACKENDS", "TIME_LIMIT_OPTION", "QPTimeout", "solve_nonneg_qp",
+           "polish_active_set", "refine_active_set", "solve_and_refine"]
 
 #: Backend name -> (qpsolvers name, tight tolerance options at ``tol``).
 QP_BACKENDS = {
@@ -29,6 +43,32 @@ QP_BACKENDS = {
     "osqp": ("osqp", lambda tol: dict(eps_abs=tol, eps_rel=tol, max_iter=200000, polish=True,
                                      adaptive_rho=True)),
 }
+
+#: Backend -> the name of its own wall-time option (None: it has none, only the kill).
+TIME_LIMIT_OPTION = {"clarabel": "time_limit", "proxqp": None, "osqp": "time_limit"}
+
+#: Share of ``max_seconds`` handed to a backend's own time limit, so that it stops
+#: cleanly before the child running it is killed at ``max_seconds``.
+OWN_LIMIT_SHARE = 0.9
+
+
+#: A forked backend call ends itself this many seconds after its limit if its parent,
+#: which kills it at the limit, is gone.
+ORPHAN_SLACK_S = 1.0
+
+
+class QPTimeout(TimeoutError):
+    """A backend did not answer within its ``max_seconds``.
+
+    Attributes
+    ----------
+    tol : float
+        The tolerance of the last attempt.
+    """
+
+    def __init__(self, message: str, tol: float = float("nan")):
+        super().__init__(message)
+        self.tol = tol
 
 
 @contextlib.contextmanager
@@ -50,27 +90,93 @@ def _c_stdout_silenced():
 
 
 def solve_nonneg_qp(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-12,
-                    x0: Optional[np.ndarray] = None) -> tuple[Optional[np.ndarray], str]:
+                    x0: Optional[np.ndarray] = None, *, max_seconds: Optional[float] = None
+                    ) -> tuple[Optional[np.ndarray], str]:
     """Solve the non-negative QP with one backend.
+
+    Parameters
+    ----------
+    A, b : ndarray
+        The QP ``min 1/2 x'Ax + b'x, x >= 0`` (A dense, symmetric).
+    backend : str
+        A key of :data:`QP_BACKENDS`.
+    tol : float
+        The backend's tolerance.
+    x0 : ndarray, optional
+        Warm start handed to the backend.
+    max_seconds : float, optional
+        Wall-time limit. The backend gets its own limit (where it has one) at
+        :data:`OWN_LIMIT_SHARE` of it, and runs in a forked child killed at
+        ``max_seconds``. None (or infinity): no limit, the call runs in this
+        process.
 
     Returns
     -------
     x : ndarray or None
-        None when the backend reports failure.
+        None when the backend reports failure (or its child dies).
     message : str
         The backend's status.
-    """
-    from qpsolvers import Problem, solve_problem
 
+    Raises
+    ------
+    QPTimeout
+        When the child was killed at ``max_seconds``.
+    """
     if backend not in QP_BACKENDS:
         raise KeyError(f"unknown QP backend {backend!r}; use one of {', '.join(QP_BACKENDS)}")
+    if max_seconds is None or math.isinf(max_seconds):
+        return _solve_here(A, b, backend, tol, x0, None)
+    if not max_seconds > 0:
+        raise QPTimeout(f"{backend}: no time left (max_seconds = {max_seconds:g})", tol)
+    if not hasattr(os, "fork"):            # no fork on this platform: the backend's own limit
+        return _solve_here(A, b, backend, tol, x0, max_seconds)
+    import qpsolvers  # noqa: F401 - imported before the fork, so no child imports it again
+
+    from lcpbench.run.executors import call_with_deadline
+
+    kind, value = call_with_deadline(_solve_in_child, (A, b, backend, tol, x0, max_seconds),
+                                     max_seconds)
+    if kind == "ok":
+        return value
+    if kind == "timeout":
+        raise QPTimeout(f"{backend}: killed at its time limit of {max_seconds:.3g} s", tol)
+    return None, f"{backend}: {value}"
+
+
+def _solve_in_child(A: np.ndarray, b: np.ndarray, backend: str, tol: float,
+                    x0: Optional[np.ndarray], max_seconds: float
+                    ) -> tuple[Optional[np.ndarray], str]:
+    """:func:`_solve_here` in the forked child, which ends itself if its parent cannot.
+
+    The parent kills the child at ``max_seconds``; should the parent be killed
+    first (``kill -9`` of the runner, or of a run's own child), the child's
+    ``SIGALRM`` at its default action ends it :data:`ORPHAN_SLACK_S` later,
+    inside compiled code too, so no backend outlives its limit.
+    """
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.setitimer(signal.ITIMER_REAL, max_seconds + ORPHAN_SLACK_S)
+    try:
+        return _solve_here(A, b, backend, tol, x0, max_seconds)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+
+
+def _solve_here(A: np.ndarray, b: np.ndarray, backend: str, tol: float,
+                x0: Optional[np.ndarray], max_seconds: Optional[float]
+                ) -> tuple[Optional[np.ndarray], str]:
+    """:func:`solve_nonneg_qp` in this process, with the backend's own time limit if any."""
+    from qpsolvers import Problem, solve_problem
+
     name, opts = QP_BACKENDS[backend]
+    options = opts(tol)
+    if max_seconds is not None and TIME_LIMIT_OPTION[backend]:
+        options[TIME_LIMIT_OPTION[backend]] = OWN_LIMIT_SHARE * max_seconds
     n = A.shape[0]
     P = sp.csc_matrix(A) if name in ("clarabel", "osqp") else A
     prob = Problem(P=P, q=np.asarray(b, dtype=np.float64), lb=np.zeros(n))
     with warnings.catch_warnings(), _c_stdout_silenced():
         warnings.simplefilter("ignore")
-        sol = solve_problem(prob, solver=name, initvals=x0, verbose=False, **opts(tol))
+        sol = solve_problem(prob, solver=name, initvals=x0, verbose=False, **options)
     status = ""
     if sol.extras:
         st = sol.extras.get("status") or sol.extras.get("info")
@@ -149,9 +255,17 @@ def _kkt(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> float:
 
 
 def solve_and_refine(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-10, *,
-                     retries: int = 2, polish: bool = True, refine_steps: int = 3
+                     retries: int = 2, polish: bool = True, refine_steps: int = 3,
+                     max_seconds: Optional[float] = None
                      ) -> tuple[Optional[np.ndarray], str, float]:
     """One backend at ``tol`` (looser by 100x per retry on failure), then polish and refine.
+
+    Parameters
+    ----------
+    max_seconds : float, optional
+        Wall-time limit of the backend's attempts together (each retry gets
+        what is left; see :func:`solve_nonneg_qp`). The polish and refinement
+        after a success are dense algebra of bounded cost and are not limited.
 
     Returns
     -------
@@ -160,12 +274,23 @@ def solve_and_refine(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e
     message : str
     tol_used : float
         The tolerance of the attempt that succeeded (or the last tried).
+
+    Raises
+    ------
+    QPTimeout
+        When ``max_seconds`` ran out before an attempt succeeded.
     """
+    deadline = None if max_seconds is None else time.monotonic() + max_seconds
     for attempt in range(retries + 1):
+        limit = {} if deadline is None else {"max_seconds": deadline - time.monotonic()}
         try:
-            x, message = solve_nonneg_qp(A, b, backend, tol)
+            x, message = solve_nonneg_qp(A, b, backend, tol, **limit)
+        except (QPTimeout, BudgetExhausted):   # out of time: no retry, the caller decides
+            raise
         except Exception as exc:  # a backend crash is a failed solve, not a crash
             x, message = None, f"{backend}: {type(exc).__name__}: {exc}"
+        if x is None and deadline is not None and time.monotonic() >= deadline:
+            raise QPTimeout(f"{message}; time limit of {max_seconds:.3g} s reached", tol)
         if x is not None or attempt == retries or tol * 100 >= 1:
             break
         tol *= 100
