@@ -8,7 +8,6 @@ import pytest
 import lcpbench
 from lcpbench.cli import main
 from lcpbench.core import guards
-from lcpbench.core.registry import problem_estimate
 from lcpbench.core.specs import make_params
 
 
@@ -20,6 +19,8 @@ def _error(capsys) -> str:
 
 
 def _estimate(spec_name: str, **values):
+    from lcpbench.core.registry import problem_estimate
+
     info = lcpbench.get_problem(spec_name)
     return problem_estimate(spec_name, make_params(spec_name, info.params,
                                                    {k: str(v) for k, v in values.items()}))
