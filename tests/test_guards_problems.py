@@ -157,3 +157,16 @@ def test_run_force_lifts_the_dense_limit_inside_the_runs(tmp_path, monkeypatch, 
     rows = pd.read_csv(out / "results.csv")
     assert len(rows) == 2 and set(rows["status"]) == {"converged"}
     assert guards.FORCE_ENV not in os.environ                  # restored after the sweep
+
+
+def test_force_passes_a_huge_sweep_without_a_second_pass_over_its_specs(monkeypatch):
+    from lcpbench.run import sweep as sweep_mod
+
+    def no_expansion(self):
+        raise AssertionError("the specs were expanded")
+
+    monkeypatch.setattr(sweep_mod.Sweep, "problem_specs", no_expansion)
+    big = sweep_mod.Sweep(solvers=["bb-pgd", "mono-pqn"], problems=["tiny"], repeat=10**6)
+    with pytest.raises(guards.TooLarge, match="at least 2,000,000 runs"):
+        sweep_mod.estimate_sweep(big)
+    assert sweep_mod.estimate_sweep(big, force=True).runs == 2 * 10**6

@@ -342,10 +342,13 @@ def estimate_sweep(sweep: Sweep, *, force: bool = False, progress: bool = False
     n_solvers = sum(spec_count(s, "solver") for s in sweep.solvers)
     n_problems = sum(spec_count(p, "problem") for p in sweep.problems)
     floor = n_solvers * n_problems * sweep.repeat
-    if not force and floor > guards.MAX_RUNS:
+    if force and floor > guards.MAX_RUNS:         # forced: no second pass over the specs
+        return SweepEstimate(floor, n_problems, float("nan"), float("nan"))
+    if floor > guards.MAX_RUNS:
         raise guards.TooLarge(_over(
             f"the sweep makes at least {floor:,} runs ({n_solvers:,} solver spec(s) x "
-            f"{n_problems:,} problem spec(s) x {sweep.repeat} repeat(s))", f"{guards.MAX_RUNS:,} runs"))
+            f"{n_problems:,} problem spec(s) x {sweep.repeat} repeat(s))",
+            f"{guards.MAX_RUNS:,} runs"))
     instances, nbytes, flops = 0, 0.0, 0.0
     specs = tqdm(sweep.problem_specs(), desc="estimating", unit="spec", file=sys.stderr,
                  disable=not progress, delay=2.0)
