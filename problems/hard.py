@@ -39,8 +39,11 @@ import numpy as np
 from lcpbench import LCP, register_problem
 from lcpbench.core.specs import Bounds, CheckedParams
 
-from .synthetic import (Cond, Count, NonNegative, SeededParams, Size, meta, planted_b,
-                        planted_pair, random_spd_matrix, reference, seeded)
+from lcpbench.core.guards import dense_family
+
+from .synthetic import (Cond, Count, NonNegative, SeededParams, Size, check_flops, meta,
+                        planted_b, planted_pair, random_spd_matrix, reference, seeded,
+                        spd_estimate)
 
 __all__ = ["planted", "spd_cond", "singular_psd", "fathi", "tiny", "all_inactive",
            "bad_scale", "bb_cycle", "random_spd_matrix", "planted_b", "fathi_matrix"]
@@ -72,7 +75,8 @@ class PlantedParams(SeededParams):
     cond: Cond = 100.0
 
 
-@register_problem("planted", PlantedParams, default=True)
+@register_problem("planted", PlantedParams, default=True, estimate=lambda p: spd_estimate(
+    p.count, p.n_active + p.n_inactive + p.n_degenerate))
 def planted(p: PlantedParams) -> list[LCP]:
     """Random SPD LCPs with a planted solution (active, inactive and degenerate indices).
 
@@ -122,7 +126,8 @@ class SpdCondParams(SeededParams):
                              f"({self.cond_min:g})")
 
 
-@register_problem("spd-cond", SpdCondParams, default=True)
+@register_problem("spd-cond", SpdCondParams, default=True,
+                  estimate=lambda p: spd_estimate(p.count, p.n))
 def spd_cond(p: SpdCondParams) -> list[LCP]:
     """SPD LCPs with condition numbers log-spaced over cond_min..cond_max.
 
@@ -171,7 +176,16 @@ class SingularPsdParams(SeededParams):
                              f"({self.n_independent}) so that those rows are independent")
 
 
-@register_problem("singular-psd", SingularPsdParams, default=True)
+def _singular_psd_estimate(p: SingularPsdParams):
+    """A = J J' (n x dof rows) per instance: 2 n^2 dof flops and the LCP's check."""
+    n = p.n_independent + p.n_duplicate + p.n_combination
+    est = dense_family(p.count, max(n, p.dof), matrices=1, temporaries=3,
+                       flops_each=2.0 * n * n * p.dof + check_flops(n))
+    return est
+
+
+@register_problem("singular-psd", SingularPsdParams, default=True,
+                  estimate=_singular_psd_estimate)
 def singular_psd(p: SingularPsdParams) -> list[LCP]:
     """Singular PSD LCPs ``A = J J'`` with redundant contacts (dependent rows of J).
 
@@ -329,7 +343,8 @@ class AllInactiveParams(SeededParams):
     zero_fraction: Annotated[float, Bounds(ge=0, le=1)] = 0.1
 
 
-@register_problem("all-inactive", AllInactiveParams, default=True)
+@register_problem("all-inactive", AllInactiveParams, default=True,
+                  estimate=lambda p: spd_estimate(p.count, p.n))
 def all_inactive(p: AllInactiveParams) -> list[LCP]:
     """SPD LCPs with ``b >= 0``: the solution is ``x = 0``, ``w = b`` (no contact active).
 
@@ -375,7 +390,8 @@ class BadScaleParams(SeededParams):
             raise ValueError(f"log_max ({self.log_max:g}) must be >= log_min ({self.log_min:g})")
 
 
-@register_problem("bad-scale", BadScaleParams, default=True)
+@register_problem("bad-scale", BadScaleParams, default=True,
+                  estimate=lambda p: spd_estimate(p.count, p.n))
 def bad_scale(p: BadScaleParams) -> list[LCP]:
     """SPD LCPs whose b spans magnitudes 10^log_min..10^log_max with mixed signs.
 

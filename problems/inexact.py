@@ -21,6 +21,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, cg, spsolve
 
 from lcpbench import LCP, Operator, register_problem
+from lcpbench.core.guards import Estimate
 from lcpbench.core.specs import Bounds
 from lcpbench.problems.synthetic import Count, SeededParams, Size, seeded
 
@@ -129,7 +130,12 @@ class InexactParams(SeededParams):
     rtol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-6
 
 
-@register_problem("inexact", InexactParams)
+def _inexact_estimate(p: InexactParams) -> Estimate:
+    """A sparse tridiagonal K (about 64 bytes per row with b) per instance; no dense work."""
+    return Estimate(p.count, p.n, p.count * (64.0 * p.n + 2048.0), 0.0)
+
+
+@register_problem("inexact", InexactParams, estimate=_inexact_estimate)
 def inexact(p: InexactParams) -> list[LCP]:
     """LCPs whose products are conjugate-gradient solves at a stated tolerance."""
     return seeded(p.count, p.seed,

@@ -21,8 +21,9 @@ from typing import Annotated
 import numpy as np
 
 from lcpbench import LCP, register_problem
+from lcpbench.core.guards import dense_family
 from lcpbench.core.specs import Bounds
-from lcpbench.problems.synthetic import Count, SeededParams, seeded
+from lcpbench.problems.synthetic import Count, SeededParams, check_flops, seeded
 
 __all__ = ["infeasible_lcp", "unbounded_lcp"]
 
@@ -89,13 +90,19 @@ class InfeasibleParams(SeededParams):
     n: Annotated[int, Bounds(ge=2)] = 5
 
 
-@register_problem("infeasible", InfeasibleParams)
+def _estimate(p: InfeasibleParams):
+    """A dense n x n A per instance, from a product of n x k factors (k < n)."""
+    return dense_family(p.count, p.n, matrices=1, temporaries=3,
+                        flops_each=2.0 * float(p.n) ** 3 + check_flops(p.n))
+
+
+@register_problem("infeasible", InfeasibleParams, estimate=_estimate)
 def infeasible(p: InfeasibleParams) -> list[LCP]:
     """LCPs without a solution: a null direction d >= 0 of A with b'd < 0."""
     return seeded(p.count, p.seed, lambda i, rng: infeasible_lcp(rng, p.n, name=f"infeasible-{i}"))
 
 
-@register_problem("unbounded", InfeasibleParams)
+@register_problem("unbounded", InfeasibleParams, estimate=_estimate)
 def unbounded(p: InfeasibleParams) -> list[LCP]:
     """LCPs whose QP is unbounded below: a zero row of A with a negative b_i."""
     return seeded(p.count, p.seed, lambda i, rng: unbounded_lcp(rng, p.n, name=f"unbounded-{i}"))

@@ -20,7 +20,8 @@ import numpy as np
 from lcpbench import LCP, Operator, register_problem
 from lcpbench.core.specs import Bounds
 
-from .synthetic import Cond, Count, SeededParams, Size, meta, random_spd_matrix, seeded
+from .synthetic import (Cond, Count, SeededParams, Size, meta, random_spd_matrix, seeded,
+                        spd_estimate)
 
 __all__ = ["random_spd", "bifidelity", "symmetric_perturbation", "with_perturbed_lows",
            "PERTURBED_LOWS"]
@@ -54,7 +55,8 @@ class RandomSpdParams(SeededParams):
                              f"cond_max = {self.cond_max:g}")
 
 
-@register_problem("random-spd", RandomSpdParams)
+@register_problem("random-spd", RandomSpdParams,
+                  estimate=lambda p: spd_estimate(p.count, p.n_max))
 def random_spd(p: RandomSpdParams) -> list[LCP]:
     """Random SPD LCPs, n 150..300 and condition number 10..100 (synthetic stand-in).
 
@@ -161,7 +163,12 @@ def with_perturbed_lows(lcp: LCP, seed: int, levels=PERTURBED_LOWS) -> LCP:
     return LCP(high, lcp.b, low=low, name=lcp.name, meta=meta, psd_check=False)
 
 
-@register_problem("bifidelity", BifidelityParams)
+def _bifidelity_estimate(p: BifidelityParams):
+    """A and A_low per instance; two 2-norms (SVDs) and eigenvalue solves besides A's build."""
+    return spd_estimate(p.count, p.n, matrices=2, extra_flops=60.0 * float(p.n) ** 3)
+
+
+@register_problem("bifidelity", BifidelityParams, estimate=_bifidelity_estimate)
 def bifidelity(p: BifidelityParams) -> list[LCP]:
     """SPD LCPs with a low-fidelity operator ``A_low = A + E`` named ``"low"``.
 

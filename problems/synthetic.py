@@ -15,11 +15,14 @@ from typing import Annotated, Callable, Optional
 import numpy as np
 
 from lcpbench import LCP
+from lcpbench.core.guards import Estimate, dense_family
+from lcpbench.core.lcp import PSD_CHECK_MAX_N
 from lcpbench.core.specs import Bounds, CheckedParams
 
 __all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "SeededParams", "seeded",
            "random_spd_matrix",
-           "planted_b", "planted_pair", "reference", "meta"]
+           "planted_b", "planted_pair", "reference", "meta", "spd_flops", "check_flops",
+           "spd_estimate"]
 
 #: Number of instances of a family.
 Count = Annotated[int, Bounds(ge=1)]
@@ -90,6 +93,33 @@ def random_spd_matrix(rng: np.random.Generator, n: int, cond: float) -> np.ndarr
     Q = _orthogonal(rng, n)
     A = (Q * lam) @ Q.T
     return (A + A.T) / 2
+
+
+def spd_flops(n: int) -> float:
+    """Work of :func:`random_spd_matrix` in matrix-product operations (a QR, Q, Q diag Q').
+
+    Householder QR and forming Q are about 8/3 n^3 flops at a fraction of the speed of a
+    matrix product; the product ``(Q lam) Q'`` is 2 n^3.
+    """
+    return 10.0 * float(n) ** 3
+
+
+def check_flops(n: int) -> float:
+    """Work of the LCP's positive-semidefiniteness check (an eigenvalue solve up to
+    :data:`lcpbench.core.lcp.PSD_CHECK_MAX_N`, none beyond)."""
+    return 10.0 * float(n) ** 3 if n <= PSD_CHECK_MAX_N else 0.0
+
+
+def spd_estimate(count: int, n: int, *, matrices: int = 1, extra_flops: float = 0.0
+                 ) -> Estimate:
+    """The :class:`~lcpbench.core.guards.Estimate` of ``count`` random SPD instances of size n.
+
+    Each keeps ``matrices`` dense n x n matrices; building one holds four more
+    (the Gaussian, Q, R and the scaled Q) and costs :func:`spd_flops` plus the LCP's
+    check plus ``extra_flops``.
+    """
+    return dense_family(count, n, matrices=matrices, temporaries=4,
+                        flops_each=spd_flops(n) + check_flops(n) + extra_flops)
 
 
 def planted_b(A: np.ndarray, x: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -130,7 +130,7 @@ def _api_rows() -> list[tuple[str, str, str]]:
 
 @pytest.mark.parametrize("call, outcome, message", _api_rows())
 def test_documented_api_error(call, outcome, message):
-    env = {"lcpbench": lcpbench, "LCP": LCP, "Operator": Operator, "np": np,
+    env = {"lcpbench": lcpbench, "LCP": LCP, "Operator": Operator, "np": np, "sp": sp,
            "A": A2, "b": B2}
     documented = message[:-3] if message.endswith("...") else message
     if outcome.startswith("status="):

@@ -137,6 +137,10 @@ def error_folder(tmp_path_factory):
     (root / "bad.toml").write_text("[[solver]\nname = 'bb-pgd'\n")
     data = shipped_sets()["lattice-bim-m3"].read_bytes()
     (root / "trunc.h5").write_bytes(data[:len(data) // 3])
+    (root / "mine").mkdir()
+    (root / "mine" / "notes.txt").write_text("the user's own file\n")
+    specs = ",".join(f'"planted:count=1,seed={i}"' for i in range(150_000))
+    (root / "many.toml").write_text(f'solvers = ["bb-pgd", "mono-pqn"]\nproblems = [{specs}]\n')
     code = main(["run", "--problem", "tiny", "--solver", "bb-pgd", "--out", str(root / "store"),
                  "--quiet", "--no-report"])
     assert code == 0
@@ -161,6 +165,8 @@ def test_documented_cli_error(command, code, message, error_folder, monkeypatch,
     assert _matches(message, errors[0]), (message, errors[0])
     for o in fresh:                               # nothing left behind in --out
         assert not Path(o).exists(), o
+    if "mine" in argv:                            # nothing written beside the user's files
+        assert sorted(p.name for p in (error_folder / "mine").iterdir()) == ["notes.txt"]
 
 
 def test_dask_executor_without_dask_is_refused_up_front(tmp_path, monkeypatch, capsys):

@@ -9,6 +9,7 @@ stderr and exits with 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Optional, Sequence
 
@@ -56,16 +57,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Entry point of the ``lcpbench`` command; returns the exit code."""
+    """Entry point of the ``lcpbench`` command; returns the exit code.
+
+    Output cut short by its reader (``lcpbench list | head``) ends quietly with exit 0.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except _user_errors() as exc:                # a plugin that fails to load, say
+        print(f"lcpbench: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     args.argv = argv
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        _silence_stdout()
+        return 0
     except KeyboardInterrupt:
         print("lcpbench: interrupted; rows already written are kept (re-run to resume)",
               file=sys.stderr)
@@ -76,10 +87,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 
 def _user_errors() -> tuple:
-    """Exceptions that mean bad input (a spec, a value, a file): one line and exit 2."""
+    """Exceptions that mean bad input (a spec, a value, a file, a plugin): one line and exit 2."""
+    from lcpbench.core.registry import PluginError
     from lcpbench.sets import StoredSetError
 
-    return (KeyError, ValueError, TypeError, OSError, ImportError, StoreLocked, StoredSetError)
+    return (KeyError, ValueError, TypeError, OSError, ImportError, StoreLocked, StoredSetError,
+            PluginError)
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):   # no real stdout (a test's capture)
+        pass
 
 
 def _one_line(exc: BaseException) -> str:

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
-from typing import Optional
+import sys
+from typing import Any, Optional
 
+from lcpbench.core import guards
+from lcpbench.core.registry import problem_estimate
 from lcpbench.core.residuals import STOP_RULES
 
-__all__ = ["add_stop_options"]
+__all__ = ["add_stop_options", "add_force_option", "guard_problem"]
 
 
 def add_stop_options(p: argparse.ArgumentParser, *, tol: Optional[float] = 1e-8,
@@ -24,3 +27,28 @@ def add_stop_options(p: argparse.ArgumentParser, *, tol: Optional[float] = 1e-8,
                        help="stop rule (default paper)")
     p.add_argument("--max-emvps", type=float, default=max_emvps,
                    help=f"E-MVP budget per {per} (default 5000)")
+
+
+def add_force_option(p: argparse.ArgumentParser) -> None:
+    """Add ``--force``: run work past the size limits of :mod:`lcpbench.core.guards`."""
+    p.add_argument("--force", action="store_true",
+                   help="build and solve past the memory, time and sweep-size limits "
+                        "(estimated before any work; see docs/errors.md)")
+
+
+def guard_problem(command: str, label: str, name: str, params: Any, *,
+                  force: bool = False) -> None:
+    """Refuse building problem ``label`` past the limits; announce a long build first.
+
+    Raises
+    ------
+    lcpbench.core.guards.TooLarge
+        The estimate is over a limit and ``force`` is not set (the message names both).
+    """
+    est = problem_estimate(name, params)
+    guards.check(label, est, force=force)
+    if est is not None:
+        secs = guards.seconds_for(est.flops)
+        if secs > guards.NOTE_AFTER_S:
+            print(f"lcpbench {command}: building {label} ({est.instances} instance(s) of n up "
+                  f"to {est.n}) takes about {guards.format_seconds(secs)}", file=sys.stderr)

@@ -10,6 +10,7 @@ leaves nothing behind in ``--out``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib.util
 import math
 import os
@@ -17,19 +18,24 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from lcpbench.core import guards
 from lcpbench.core.api import requested_lows
 from lcpbench.core.context import Budget
+from lcpbench.core.registry import get_solver
 from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.cli.options import add_stop_options
 from lcpbench.report.render import render_report, stderr_progress
 from lcpbench.run.runner import (Plan, describe_counts, execute, git_commit,
                                   machine_info, plan)
 from lcpbench.run.store import RunStore
-from lcpbench.run.sweep import Sweep, default_sweep, load_config
+from lcpbench.run.sweep import Sweep, default_sweep, estimate_sweep, load_config
 from lcpbench.core.clock import utc_now
 
 __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep",
-           "check_plan", "check_out_dir"]
+           "check_plan", "check_out_dir", "check_not_foreign"]
+
+#: Files that mark a folder as a run store (``lcpbench run`` or ``simulate`` wrote it).
+STORE_MARKERS = ("results.csv", "meta.json", "history.csv", ".lock", "checkpoints")
 
 
 def add_run_parser(sub) -> None:
@@ -56,7 +62,8 @@ def add_run_parser(sub) -> None:
                         "Each QP backend of an instance's reference gets it too (without "
                         "it: 10 s + 20 s x (n/1000)^3), in a child killed at the limit")
     p.add_argument("--force", action="store_true",
-                   help="run into a DIR whose stored configuration differs")
+                   help="run into a DIR whose stored configuration differs, and past the "
+                        "memory, time and sweep-size limits (estimated before any work)")
     p.add_argument("--no-report", action="store_true", help="do not render report.html")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_run)
@@ -112,17 +119,46 @@ def check_out_dir(out: Path, flag: str = "--out") -> None:
         raise ValueError(f"{flag} {out}: {parent} is not a folder; choose another {flag}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{flag} {out}: {parent} is not writable; choose another {flag}")
+    check_not_foreign(out, flag)
 
 
-def check_plan(p: Plan) -> None:
-    """Low-fidelity names a solver asks for must exist on the instances it runs on.
+def check_not_foreign(out: Path, flag: str = "--out") -> None:
+    """Refuse an ``--out`` folder that holds files but is not a run store.
+
+    A run store is written beside nothing else: an existing folder of the user's own
+    (no ``results.csv``, ``meta.json``, ``history.csv``, lock or ``checkpoints``) is not
+    written into.
 
     Raises
     ------
     ValueError
-        Naming the solver, the missing name, the problem and its low fidelities.
+        Naming the folder, one of its files and what to do.
+    """
+    if not out.is_dir() or any((out / m).exists() for m in STORE_MARKERS):
+        return
+    own = sorted(p.name for p in out.iterdir())
+    if own:
+        raise ValueError(f"{flag} {out} is a folder of other files (e.g. {own[0]}), not a run "
+                         f"store; give a new or empty folder, e.g. {out / 'lcpbench-run'}")
+
+
+def check_plan(p: Plan, *, force: bool = False) -> None:
+    """Low-fidelity names a solver asks for must exist on the instances it runs on, and
+    a solver that needs the dense A must get one within the limit (unless ``force``).
+
+    Raises
+    ------
+    ValueError
+        Naming the solver, the missing name, the problem and its low fidelities; or the
+        instance and the size of its dense A.
     """
     for run in p.runs:
+        if get_solver(run.solver.name).needs_dense:
+            lcp = p.lcp(run)
+            refused = guards.dense_refusal(run.solver.name, lcp.n,
+                                           matrix_free=not lcp.A.explicit, force=force)
+            if refused:
+                raise ValueError(f"{run.problem.label}/{lcp.name}: {refused}")
         names = requested_lows(run.solver.params)
         if not names:
             continue
@@ -149,14 +185,36 @@ def cmd_run(args: argparse.Namespace) -> int:
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("reports") / f"run-{stamp}"
     check_out_dir(out)
+    est = estimate_sweep(sweep, force=args.force, progress=not args.quiet)
     if not args.quiet:
         print(f"lcpbench run: planning {len(sweep.solvers)} solver spec(s) x "
               f"{len(sweep.problems)} problem spec(s) into {out}", file=sys.stderr)
-    p = plan(sweep)
-    check_plan(p)
+        if est.seconds > guards.NOTE_AFTER_S:
+            print(f"lcpbench run: about {est.runs:,} runs on {est.instances:,} instance(s); "
+                  f"planning takes about {guards.format_seconds(est.seconds)}", file=sys.stderr)
+    p = plan(sweep, progress=not args.quiet)
+    check_plan(p, force=args.force)
     store = RunStore(out)
-    with store.lock():
+    with store.lock(), _forced(args.force):
         return _run_locked(args, sweep, p, store, out)
+
+
+@contextlib.contextmanager
+def _forced(force: bool):
+    """Set :data:`lcpbench.core.guards.FORCE_ENV` while the runs of a ``--force`` sweep execute,
+    so that solves in this process and in the workers it starts lift the dense limit too."""
+    if not force:
+        yield
+        return
+    old = os.environ.get(guards.FORCE_ENV)
+    os.environ[guards.FORCE_ENV] = "1"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(guards.FORCE_ENV, None)
+        else:
+            os.environ[guards.FORCE_ENV] = old
 
 
 def _run_locked(args: argparse.Namespace, sweep: Sweep, p: Plan, store: RunStore,

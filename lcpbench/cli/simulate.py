@@ -44,11 +44,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
+    from lcpbench.cli.run import check_not_foreign
     from lcpbench.workflows.simulate import (DEFAULT_OVERLAP_TOL, DEFAULT_QN_MEMORY,
                                              Interrupted, simulate)
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    check_not_foreign(out)
     try:
         rows = simulate(args.scene, args.solver or [SIMULATE_SOLVER], args.steps, out,
                         warm_start=not args.no_warm_start,

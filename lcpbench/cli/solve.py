@@ -7,7 +7,8 @@ import dataclasses
 import json
 import sys
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_force_option, add_stop_options, guard_problem
+from lcpbench.core.guards import dense_refusal
 from lcpbench.core.defaults import DEFAULT_SOLVER, EXAMPLE_PROBLEM
 from lcpbench.core.registry import get_problem, solvers
 from lcpbench.core.specs import make_params, parse_spec
@@ -29,6 +30,7 @@ def add_solve_parser(sub) -> None:
                    help="solve only instance I of the family (0-based)")
     add_stop_options(p)
     p.add_argument("--json", action="store_true", help="one JSON object per solve")
+    add_force_option(p)
     p.set_defaults(func=cmd_solve)
 
 
@@ -39,22 +41,31 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
     name, raw = parse_spec(args.problem)
     info = get_problem(name)
-    lcps = info.func(make_params(name, info.params, raw))
+    params = make_params(name, info.params, raw)
+    specs = args.solver or [DEFAULT_SOLVER]
+    for spec in specs:            # a bad solver spec is reported before the problem is built
+        sname, sraw = parse_spec(spec)
+        make_params(sname, (solvers().get(sname) or _unknown_solver(sname)).params, sraw)
+    guard_problem("solve", args.problem, name, params, force=args.force)
+    lcps = info.func(params)
     if args.instance is not None:
         if not 0 <= args.instance < len(lcps):
             raise ValueError(f"--instance {args.instance} is out of range: {args.problem} "
                              f"has {len(lcps)} instance(s), 0..{len(lcps) - 1}")
         lcps = [lcps[args.instance]]
-    specs = args.solver or [DEFAULT_SOLVER]
-    for spec in specs:            # fail on a bad spec or low name before any work
+    for spec in specs:            # fail on a low name or a dense A too large before any solve
         sname, sraw = parse_spec(spec)
-        sinfo = solvers().get(sname)
-        sparams = make_params(sname, (sinfo or _unknown_solver(sname)).params, sraw)
+        sinfo = solvers()[sname]
+        sparams = make_params(sname, sinfo.params, sraw)
         for lcp in lcps:
             missing = [n for n in requested_lows(dataclasses.asdict(sparams)) if n not in lcp.low]
             if lcp.low and missing:
                 raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} on "
                                  f"{lcp.name} (it has: {', '.join(sorted(lcp.low))})")
+            refused = sinfo.needs_dense and dense_refusal(
+                sname, lcp.n, matrix_free=not lcp.A.explicit, force=args.force)
+            if refused:
+                raise ValueError(f"{lcp.name}: {refused}")
     make_stop_rule(args.stop, args.tol)
     budget = Budget(max_emvps=args.max_emvps)
     rows = []
@@ -64,7 +75,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
                 print(f"lcpbench solve: skipping {spec} on {lcp.name}: the instance has no "
                       "low-fidelity operators", file=sys.stderr)
                 continue
-            res = run_solver(lcp, spec, stop=args.stop, tol=args.tol, budget=budget)
+            res = run_solver(lcp, spec, stop=args.stop, tol=args.tol, budget=budget,
+                             force=args.force)
             row = {"instance": lcp.name, "n": lcp.n, "solver": spec, "status": res.status.value,
                    "solved": bool(res.solved), "emvps": round(float(res.emvps), 3),
                    "mvps": int(res.mvps), "iterations": int(res.iterations),

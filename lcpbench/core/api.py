@@ -13,6 +13,7 @@ from scipy.sparse.linalg import LinearOperator
 from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.deadline import Deadline
+from lcpbench.core.guards import dense_refusal
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
 from lcpbench.core.registry import get_solver
@@ -53,7 +54,7 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
                tol: float = 1e-8, budget: Optional[Budget] = None,
                x0: Optional[np.ndarray] = None, state: Any = None,
                verify_history: Optional[bool] = None, callback: Optional[Callable] = None,
-               params: Optional[dict] = None) -> SolveResult:
+               params: Optional[dict] = None, force: bool = False) -> SolveResult:
     """Run one registered solver on ``lcp`` and verify the answer.
 
     Parameters
@@ -77,6 +78,9 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         ``callback(row, x)`` after each iterate.
     params : dict, optional
         Solver parameters (merged with those in the spec string).
+    force : bool
+        Form the dense A for a solver that needs it even past the dense-conversion
+        limit of :mod:`lcpbench.core.guards` (never past the available memory).
 
     Returns
     -------
@@ -85,7 +89,8 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         product, see :mod:`lcpbench.core.claims`), the operator-counted MVPs and
         E-MVPs, and the framework's verified residuals (one uncounted product).
         An exception from the solver or from a user operator gives a ``failed``
-        result naming it; it never escapes.
+        result naming it; it never escapes. So does a dense A refused up front or
+        out of memory.
     """
     info, p = _resolve_solver(solver, params or {})
     if isinstance(tol, np.floating):
@@ -105,11 +110,14 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     if verify_history is None:
         verify_history = run.A.explicit
     monitor = Monitor(verify=verify_history, callback=callback)
-    dense = run.dense() if (info.needs_dense and run.n) else None
+    dense, refused = _dense_for(run, info, force)
     ctx = SolverContext(run, rule, budget, monitor, x0=x0, dense=dense, state=state)
     ctx.info["stop_rule"] = rule.kind
 
-    if run.n == 0:
+    if refused:
+        res = SolveResult(x=ctx.x0.copy(), w=np.full(run.n, np.nan), status=Status.failed,
+                          message=refused)
+    elif run.n == 0:
         z = np.zeros(0)
         ctx.start()
         ctx.report(z, z)
@@ -128,6 +136,24 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         infeasibility_evidence(ctx, res)
     res.time_s = ctx.elapsed()
     return _complete(res, run, ctx, info, p, rule)
+
+
+def _dense_for(run: LCP, info, force: bool) -> tuple[Optional[np.ndarray], Optional[str]]:
+    """The explicit A of a solver registered ``needs_dense``, or why it is not formed.
+
+    The size of the copy is estimated first (:func:`lcpbench.core.guards.dense_refusal`);
+    running out of memory while forming it is reported the same way, never raised.
+    """
+    if not (info.needs_dense and run.n):
+        return None, None
+    refused = dense_refusal(info.name, run.n, matrix_free=not run.A.explicit, force=force)
+    if refused:
+        return None, refused
+    try:
+        return run.dense(), None
+    except MemoryError:
+        return None, (f"{info.name} needs A as a dense matrix: forming it (n = {run.n}) ran out "
+                      "of memory; use an MVP-only solver")
 
 
 def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
@@ -219,7 +245,8 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
           stop: Union[str, StopRule] = "paper", x0=None, max_emvps: float = 5000.0,
           max_seconds: Optional[float] = None, max_iter: int = 5000, low: Optional[dict] = None,
           low_cost: Union[float, dict, None] = None, shape: Optional[tuple] = None,
-          state: Any = None, callback: Optional[Callable] = None, **params) -> SolveResult:
+          state: Any = None, callback: Optional[Callable] = None, force: bool = False,
+          **params) -> SolveResult:
     """Solve the LCP ``0 <= x _|_ A x + b >= 0``.
 
     Parameters
@@ -257,8 +284,13 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         stepping; solvers that keep none ignore it).
     callback : callable, optional
         ``callback(row, x)`` after each iterate.
+    force : bool
+        Let a solver that needs the explicit matrix form it past the dense-conversion
+        limit (2 GiB, see :mod:`lcpbench.core.guards`); without it such a solve is
+        ``failed`` with the estimate in its message.
     **params
-        Solver parameters (checked against the solver's parameter dataclass).
+        Solver parameters (checked against the solver's parameter dataclass); a
+        misspelt keyword of this function (``tolerance=``) is named as such.
 
     Returns
     -------
@@ -281,6 +313,7 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
     >>> lcpbench.solve(A, b, solver="bb-pgd", stop="kkt").solved
     True
     """
+    _misspelt_keywords(solver, params)
     if isinstance(A_or_lcp, LCP):
         if b is not None or low is not None or low_cost is not None or shape is not None:
             raise ValueError("pass b, low and their costs inside the LCP, not beside it")
@@ -295,7 +328,7 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         lcp = LCP(A, b, low=lows)
     budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds, max_iter=max_iter)
     res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, x0=x0, state=state,
-                     callback=callback, params=params)
+                     callback=callback, params=params, force=force)
     clocked = [name for name, op in [("high", lcp.A), *lcp.low.items()]
                if op.declared_cost is None]
     if clocked and any(res.lofi_mvps.values()):
@@ -304,6 +337,39 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
                       "identical solves; pass low_cost= (or lcpbench.Operator(A, cost=...))",
                       UserWarning, stacklevel=2)
     return res
+
+
+#: The keywords of :func:`solve` itself, offered for a misspelt one.
+_SOLVE_KEYWORDS = ("solver", "tol", "stop", "x0", "max_emvps", "max_seconds", "max_iter", "low",
+                   "low_cost", "shape", "state", "callback", "force")
+#: Other libraries' names of solve's keywords.
+_SOLVE_ALIASES = {"tolerance": "tol", "eps": "tol", "atol": "tol", "rtol": "tol",
+                  "maxiter": "max_iter", "max_iterations": "max_iter", "timeout": "max_seconds",
+                  "time_limit": "max_seconds", "budget": "max_emvps", "warm_start": "x0"}
+
+
+def _misspelt_keywords(solver: str, params: dict) -> None:
+    """TypeError for a keyword that is no parameter of the solver but resembles one of solve's.
+
+    ``tolerance=1e-6`` is a misspelt ``tol``, not an unknown solver parameter.
+    """
+    import difflib
+    import dataclasses
+
+    if not params or not isinstance(solver, str):
+        return
+    name = parse_spec(solver)[0]
+    fields = [f.name for f in dataclasses.fields(get_solver(name).params)]
+    for key in params:
+        if key.replace("-", "_") in fields:
+            continue
+        close = ([_SOLVE_ALIASES[key]] if key in _SOLVE_ALIASES else
+                 [k for k in _SOLVE_KEYWORDS if key.startswith(k) or k.startswith(key)][:1]
+                 or difflib.get_close_matches(key, _SOLVE_KEYWORDS, n=1, cutoff=0.75))
+        if close:
+            raise TypeError(f"unknown keyword {key!r}. Did you mean {close[0]}? (lcpbench.solve "
+                            f"takes {', '.join(_SOLVE_KEYWORDS)}; {name}'s own parameters: "
+                            f"{', '.join(fields) or 'none'})")
 
 
 def _operator(M, name: str, shape: Optional[tuple], n: int):

@@ -24,7 +24,7 @@ import sys
 import difflib
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 from lcpbench.core.specs import make_params, parse_spec
 
@@ -32,7 +32,7 @@ __all__ = [
     "SolverInfo", "ProblemInfo", "register_solver", "register_problem", "get_solver",
     "get_problem", "solvers", "problems",
     "SceneInfo", "register_scene", "scenes", "get_scene", "make_scene",
-    "SetInfo", "register_set", "stored_sets",
+    "SetInfo", "register_set", "stored_sets", "PluginError", "problem_estimate",
 ]
 
 
@@ -79,13 +79,19 @@ class SolverInfo:
 
 @dataclass(frozen=True)
 class ProblemInfo:
-    """A registered problem family: ``func(params) -> list[LCP]``."""
+    """A registered problem family: ``func(params) -> list[LCP]``.
+
+    ``estimate(params) -> lcpbench.core.guards.Estimate`` (optional) says what building
+    the instances costs before any is built; the command line refuses work over the
+    limits of :mod:`lcpbench.core.guards` with it.
+    """
 
     name: str
     func: Callable
     params: type
     summary: str = ""
     default: bool = False
+    estimate: Optional[Callable] = None
 
 
 _SOLVERS: dict[str, SolverInfo] = {}
@@ -149,13 +155,17 @@ def register_solver(name: str, params: type, *, needs_dense: bool = False,
         name, func, params, needs_dense, reference, multifidelity, summary, listed))
 
 
-def register_problem(name: str, params: type, *, default: bool = False):
+def register_problem(name: str, params: type, *, default: bool = False,
+                     estimate: Optional[Callable] = None):
     """Decorator registering ``func(params) -> list[LCP]`` as problem family ``name``.
 
     ``default=True`` puts the family in the shipped default set of ``lcpbench run``.
+    ``estimate(params)`` returns a :class:`lcpbench.core.guards.Estimate` of the
+    instances' memory and build work, computed from the parameters alone (no matrix
+    is built), so that oversized work is refused before it starts.
     """
     return _registrar("problem", _PROBLEMS, name, params, lambda func, summary: ProblemInfo(
-        name, func, params, summary, default))
+        name, func, params, summary, default, estimate))
 
 
 #: Environment variable naming extra plugin modules or ``.py`` files (comma-separated),
@@ -165,8 +175,15 @@ def register_problem(name: str, params: type, *, default: bool = False):
 PLUGINS_ENV = "LCPBENCH_PLUGINS"
 
 
+class PluginError(RuntimeError):
+    """A plugin failed to load (a missing file named in ``LCPBENCH_PLUGINS``, an import error)."""
+
+
 def _load_env_plugins() -> None:
     for item in filter(None, (s.strip() for s in os.environ.get(PLUGINS_ENV, "").split(","))):
+        if item.endswith(".py") and not os.path.isfile(item):
+            raise PluginError(f"${PLUGINS_ENV} names {item!r}, which is not a file; fix the path "
+                              f"or remove it from ${PLUGINS_ENV}")
         try:
             if item.endswith(".py"):
                 path = os.path.abspath(item)
@@ -186,8 +203,8 @@ def _load_env_plugins() -> None:
             else:
                 importlib.import_module(item)
         except Exception as exc:
-            raise RuntimeError(f"plugin {item!r} named in ${PLUGINS_ENV} failed to load: "
-                               f"{exc}") from exc
+            raise PluginError(f"plugin {item!r} named in ${PLUGINS_ENV} failed to load: "
+                              f"{type(exc).__name__}: {exc}") from exc
 
 
 def _load(group: str) -> None:
@@ -205,8 +222,8 @@ def _load(group: str) -> None:
         try:
             ep.load()
         except Exception as exc:
-            raise RuntimeError(f"plugin {ep.name!r} ({ep.value}) of {group!r} failed to "
-                               f"load: {exc}") from exc
+            raise PluginError(f"plugin {ep.name!r} ({ep.value}) of {group!r} failed to "
+                              f"load: {type(exc).__name__}: {exc}") from exc
 
 
 def solvers() -> dict[str, SolverInfo]:
@@ -255,6 +272,14 @@ def get_problem(name: str) -> ProblemInfo:
     """The registered problem family ``name`` (KeyError naming the known ones otherwise)."""
     return _lookup("problem", problems(), name)
 
+
+def problem_estimate(name: str, params: Any):
+    """The registered estimate of building problem ``name`` with ``params``, or None.
+
+    None when the family registers no estimate (its cost is then not checked).
+    """
+    info = get_problem(name)
+    return info.estimate(params) if info.estimate is not None else None
 
 
 # ---------------------------------------------------------------------- scenes

@@ -79,11 +79,14 @@ def generate(spec: Spec) -> list[LCP]:
 
 
 def plan(sweep: Sweep, progress: bool = False) -> Plan:
-    """Expand the sweep into runs (validating every spec first)."""
+    """Expand the sweep into runs (validating every spec first); ``progress``: a bar on stderr."""
+    from tqdm.auto import tqdm
+
     solver_specs = sweep.solver_specs()
     problem_specs = sweep.problem_specs()
     instances, runs, skipped = {}, [], []
-    for ps in problem_specs:
+    for ps in tqdm(problem_specs, desc="planning", unit="spec", file=sys.stderr,
+                   disable=not progress, delay=2.0):
         lcps = generate(ps)
         instances[_problem_key(ps)] = lcps
         for ss in solver_specs:

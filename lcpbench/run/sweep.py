@@ -24,18 +24,24 @@ lets an interrupted sweep resume without redoing or duplicating rows.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import itertools
 import json
+import math
+import sys
 import typing
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Optional
 
-from lcpbench.core.registry import get_problem, get_solver, problems, solvers
+from lcpbench.core import guards
+from lcpbench.core.registry import (get_problem, get_solver, problem_estimate, problems,
+                                    solvers)
 from lcpbench.core.specs import make_params, parse_spec, split_top_level
 from lcpbench.core.residuals import STOP_RULES
 
-__all__ = ["Spec", "RunSpec", "Sweep", "expand", "per_low", "load_config", "default_sweep"]
+__all__ = ["Spec", "RunSpec", "Sweep", "expand", "per_low", "load_config", "default_sweep",
+           "spec_count", "SweepEstimate", "estimate_sweep"]
 
 
 @dataclass(frozen=True)
@@ -98,6 +104,54 @@ def _items(value: str) -> Optional[list[str]]:
     return None
 
 
+@functools.lru_cache(maxsize=256)
+def _registered(kind: str, name: str) -> tuple[Any, dict]:
+    """The registry info of a solver or problem and its parameters' type hints."""
+    info = get_solver(name) if kind == "solver" else get_problem(name)
+    return info, typing.get_type_hints(info.params)
+
+
+def _axes(spec: str, kind: str, seed: Optional[int] = None, *, cached: bool = False
+          ) -> tuple[str, Any, list]:
+    """``(name, registry info, axes)`` of a spec: one list of ``(key, value)`` per key.
+
+    ``cached``: look the name up in a cache (for counting many specs; the registry as it
+    was at the first lookup of that name).
+    """
+    name, values = parse_spec(spec)
+    if cached:
+        info, types = _registered(kind, name)
+    else:
+        info = get_solver(name) if kind == "solver" else get_problem(name)
+        types = typing.get_type_hints(info.params)
+    if kind == "problem" and seed is not None and "seed" in types and "seed" not in values:
+        values["seed"] = str(seed)
+    axes = []
+    for key, value in values.items():
+        items = _items(value)
+        if items is None:
+            axes.append([(key, value)])
+        elif key in types and _is_list_type(types[key]):
+            nested = [_items(i) for i in items]
+            if items and all(n is not None for n in nested):
+                axes.append([(key, i) for i in items])      # [[a,b],[c]]: sweep over lists
+            else:
+                axes.append([(key, value)])                  # [a,b]: one list value
+        else:
+            axes.append([(key, i) for i in items])
+    return name, info, axes
+
+
+def spec_count(spec: str, kind: str) -> int:
+    """How many specs :func:`expand` makes of ``spec``, by arithmetic on its brackets.
+
+    Nothing is validated or built: ``bi-pqn:low=[p3,p4],memory=[5,10,20]`` is 6.
+    """
+    if isinstance(spec, str) and "[" not in spec:
+        return 1
+    return math.prod(len(axis) for axis in _axes(spec, kind, cached=True)[2])
+
+
 def expand(spec: str, kind: str, seed: Optional[int] = None) -> list[Spec]:
     """Expand ``name:k=[a,b],...`` into validated :class:`Spec` objects.
 
@@ -114,24 +168,7 @@ def expand(spec: str, kind: str, seed: Optional[int] = None) -> list[Spec]:
         Unknown name or parameter, or a value of the wrong type, with the
         registry's message (nothing is run before the whole plan is valid).
     """
-    name, values = parse_spec(spec)
-    info = get_solver(name) if kind == "solver" else get_problem(name)
-    types = typing.get_type_hints(info.params)
-    if kind == "problem" and seed is not None and "seed" in types and "seed" not in values:
-        values["seed"] = str(seed)
-    axes = []
-    for key, value in values.items():
-        items = _items(value)
-        if items is None:
-            axes.append([(key, value)])
-        elif key in types and _is_list_type(types[key]):
-            nested = [_items(i) for i in items]
-            if items and all(n is not None for n in nested):
-                axes.append([(key, i) for i in items])      # [[a,b],[c]]: sweep over lists
-            else:
-                axes.append([(key, value)])                  # [a,b]: one list value
-        else:
-            axes.append([(key, i) for i in items])
+    name, info, axes = _axes(spec, kind, seed)
     out = []
     for combo in itertools.product(*axes) if axes else [()]:
         given = tuple(sorted(combo))
@@ -248,3 +285,101 @@ def default_sweep() -> tuple[list[str], list[str]]:
           if info.listed and (info.mvp_only or info.reference)]
     pb = [name for name, info in sorted(problems().items()) if info.default]
     return sv, pb
+
+
+# ----------------------------------------------------------------------------- sweep size
+#: Planning seconds per problem spec (parameters checked, instances listed), per instance
+#: beside its matrix work and per run (its spec and id): measured on a 2-core machine.
+PLAN_S_PER_SPEC, PLAN_S_PER_INSTANCE, PLAN_S_PER_RUN = 1e-3, 2e-3, 4e-5
+#: Bytes a planned run holds (its spec, its id, its row of bookkeeping).
+PLAN_BYTES_PER_RUN = 1024
+
+
+@dataclass(frozen=True)
+class SweepEstimate:
+    """What planning a sweep costs, estimated before it is planned.
+
+    Attributes
+    ----------
+    runs : int
+        Runs of the plan (multi-fidelity solvers count once per instance).
+    instances : int
+        Instances built (a family without a registered estimate counts as one).
+    bytes : float
+        Memory of the instances and the plan.
+    seconds : float
+        Planning time (building the instances, expanding the specs).
+    """
+
+    runs: int
+    instances: int
+    bytes: float
+    seconds: float
+
+
+def _over(what: str, limit: str) -> str:
+    return f"{what}; make the sweep smaller, or pass --force (limit: {limit})"
+
+
+def estimate_sweep(sweep: Sweep, *, force: bool = False, progress: bool = False
+                   ) -> SweepEstimate:
+    """Count and price the sweep's runs before planning it; refuse it past the limits.
+
+    The number of specs comes first, by arithmetic on the brackets (a sweep of a million
+    specs is refused in milliseconds); then each problem spec's registered estimate
+    (:func:`lcpbench.core.registry.problem_estimate`) gives its instances, memory and
+    build work.
+
+    Raises
+    ------
+    lcpbench.core.guards.TooLarge
+        More than :data:`~lcpbench.core.guards.MAX_RUNS` runs, more memory than the
+        limit or more planning time than :data:`~lcpbench.core.guards.TIME_LIMIT_S`,
+        unless ``force``; the message gives the estimate.
+    """
+    from tqdm.auto import tqdm
+
+    n_solvers = sum(spec_count(s, "solver") for s in sweep.solvers)
+    n_problems = sum(spec_count(p, "problem") for p in sweep.problems)
+    floor = n_solvers * n_problems * sweep.repeat
+    if force and floor > guards.MAX_RUNS:         # forced: no second pass over the specs
+        return SweepEstimate(floor, n_problems, float("nan"), float("nan"))
+    if floor > guards.MAX_RUNS:
+        raise guards.TooLarge(_over(
+            f"the sweep makes at least {floor:,} runs ({n_solvers:,} solver spec(s) x "
+            f"{n_problems:,} problem spec(s) x {sweep.repeat} repeat(s))",
+            f"{guards.MAX_RUNS:,} runs"))
+    instances, nbytes, flops = 0, 0.0, 0.0
+    specs = tqdm(sweep.problem_specs(), desc="estimating", unit="spec", file=sys.stderr,
+                 disable=not progress, delay=2.0)
+    for ps in specs:
+        info = get_problem(ps.name)
+        est = problem_estimate(ps.name, make_params(ps.name, info.params, ps.values()))
+        if est is None:
+            instances += 1
+            continue
+        guards.check(ps.label, est, force=force)
+        instances, nbytes, flops = instances + est.instances, nbytes + est.bytes, flops + est.flops
+    runs = n_solvers * instances * sweep.repeat
+    nbytes += runs * PLAN_BYTES_PER_RUN
+    seconds = (guards.seconds_for(flops) + n_problems * PLAN_S_PER_SPEC
+               + instances * PLAN_S_PER_INSTANCE + runs * PLAN_S_PER_RUN)
+    out = SweepEstimate(runs, instances, nbytes, seconds)
+    if force:
+        return out
+    if runs > guards.MAX_RUNS:
+        raise guards.TooLarge(_over(f"the sweep makes about {runs:,} runs ({instances:,} "
+                                    f"instance(s) x {n_solvers:,} solver spec(s) x "
+                                    f"{sweep.repeat} repeat(s))", f"{guards.MAX_RUNS:,} runs"))
+    limit = guards.memory_limit()
+    if nbytes > limit:
+        raise guards.TooLarge(_over(
+            f"planning the sweep holds about {guards.format_bytes(nbytes)} ({instances:,} "
+            f"instance(s), {runs:,} runs)", f"{guards.format_bytes(limit)}, "
+            f"{guards.MEMORY_FRACTION:.0%} of the available memory"))
+    if seconds > guards.TIME_LIMIT_S:
+        raise guards.TooLarge(_over(
+            f"planning the sweep takes about {guards.format_seconds(seconds)} before its first "
+            f"run ({n_problems:,} problem spec(s), {instances:,} instance(s), {runs:,} runs)",
+            guards.format_seconds(guards.TIME_LIMIT_S)))
+    return out

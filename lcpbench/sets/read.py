@@ -46,6 +46,9 @@ def _open(path: PathLike) -> h5py.File:
     if not p.exists():
         raise StoredSetError(f"{p}: no such stored set; check the path (shipped sets: "
                              f"{', '.join(stored_sets()) or 'none'})", path=p)
+    if p.is_dir():
+        raise StoredSetError(f"{p} is a folder, not a stored set; give the set's .h5 file, e.g. "
+                             f"{p / 'NAME.h5'}", path=p)
     try:
         return h5py.File(p, "r")
     except OSError as exc:

@@ -165,7 +165,7 @@ def resolve_sets(names: Optional[Sequence[str]] = None) -> dict[str, Path]:
     Raises
     ------
     ValueError
-        A name that is neither a shipped set nor an existing file.
+        A name that is neither a shipped set nor an existing file, or a folder.
     """
     shipped = {name: Path(info.path) for name, info in stored_sets().items()}
     if not names:
@@ -175,6 +175,9 @@ def resolve_sets(names: Optional[Sequence[str]] = None) -> dict[str, Path]:
         p = Path(n)
         if n in shipped:
             out[n] = shipped[n]
+        elif p.is_dir():
+            raise ValueError(f"--set {n}: a folder, not a stored set; give a set's .h5 file "
+                             f"(e.g. {p / 'NAME.h5'}) or a shipped set's name")
         elif p.suffix == ".h5" and p.exists():
             out[p.stem] = p
         else:
@@ -237,7 +240,8 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     Raises
     ------
     ValueError
-        Unknown set, bad baseline file, bad solver spec.
+        Unknown set, bad baseline file, bad solver spec, or a solver that is not
+        MVP-only (a reference or dense solver has no E-MVP baseline to check).
     lcpbench.sets.StoredSetError
         A set is truncated or corrupted.
     """
@@ -252,7 +256,14 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     Budget(max_emvps=max_emvps)
     for spec in solver_specs or ():
         name, raw = parse_spec(spec)
-        make_params(name, get_solver(name).params, raw)
+        info = get_solver(name)
+        make_params(name, info.params, raw)
+        if info.reference or not info.mvp_only:
+            kind = "a reference QP solver" if info.reference else "a solver"
+            raise ValueError(f"--solver {spec}: {name} is {kind} that needs the dense A, and "
+                             "lcpbench check compares the E-MVPs of MVP-only solvers with their "
+                             f"baselines; run it with lcpbench solve --problem "
+                             f"set-NAME --solver {spec}")
     data = load_baselines(path)
     chosen = resolve_sets(sets)
     loaded = {name: read_set(p) for name, p in chosen.items()}
