@@ -407,6 +407,7 @@ class SetWriter:
     def ids(self) -> list[str]:
         """Finished instance ids, in the order they were written."""
         return list(self.file[_INSTANCES].keys())
+
     # -------------------------------------------------------------- writing
     def write_instance(self, instance_id: str, A, b, *,
                        low: Optional[Mapping[str, tuple]] = None, x0=None,
@@ -496,7 +497,6 @@ class SetWriter:
             raise ValueError(f"instance {iid}: attrs may not set 'n' or 'sha256:*' "
                              "(written by SetWriter)")
         return datasets, low_attrs, ref_attrs, inst_attrs, n
-
 
     def _add(self, iid: str, datasets: dict, low_attrs: dict, ref_attrs: dict,
              inst_attrs: dict, n: int) -> None:

@@ -37,6 +37,13 @@ settings (scene, solver, stop rule, tolerance, budget) are the same and no step
 still to be stored lies before it. Otherwise the rerun says why and simulates
 from step 0. The checkpoint stays after the run, so a longer ``--steps`` range
 appends without re-simulating either; delete it to reclaim its few kilobytes.
+
+A write that fails (disk full, I/O error) leaves the set as it was before that
+instance (:class:`~lcpbench.sets.SetWriter` replaces the file atomically after
+each instance) and the checkpoint at the step before it, and raises
+:class:`~lcpbench.sets.StoredSetError` (``OSError`` for the checkpoint) with one
+line saying so; with space again the same command resumes. Only one run writes a
+set at a time.
 """
 
 from __future__ import annotations
@@ -284,7 +291,11 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     KeyError, TypeError, ValueError
         Bad scene, solver, step or fidelity; a file generated with other settings.
     lcpbench.sets.StoredSetError
-        The existing file is truncated or corrupted (names instance and dataset).
+        The existing file is truncated or corrupted (names instance and dataset), another
+        run writes it, or an instance could not be written (the set keeps every finished
+        instance; rerun to resume).
+    OSError
+        The checkpoint could not be written (the previous one is kept; rerun to resume).
     """
     import time
 
