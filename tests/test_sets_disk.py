@@ -71,6 +71,9 @@ def test_full_disk_during_generate_keeps_the_set_and_the_same_command_resumes(
     for a, b in zip(st.read_set(out), st.read_set(one_shot)):
         np.testing.assert_array_equal(a.dense(), b.dense())
         np.testing.assert_array_equal(a.b, b.b)
+    # on the full disk again, a rerun with nothing left to store writes nothing and succeeds
+    done = _generate(out, cap)
+    assert done.returncode == 0 and "kept 6" in done.stdout, done.stderr[-2000:]
 
 
 def _small(seed: int, n: int = 6):
@@ -137,3 +140,17 @@ def test_orphan_temporaries_of_a_killed_writer_are_removed(tmp_path):
     with st.SetWriter(path, title="t", description="d", generator="g") as w:
         assert w.ids() == ["0"]
     assert not orphan.exists() and other.exists()
+
+
+def test_a_writer_that_adds_nothing_does_not_rewrite_the_file(tmp_path):
+    """A resume that only keeps instances needs no free space: the file is not replaced."""
+    path = tmp_path / "set.h5"
+    with st.SetWriter(path, title="t", description="d", generator="g") as w:
+        w.write_instance("0", *_small(0))
+    inode = path.stat().st_ino
+    with st.SetWriter(path, title="t", description="d", generator="g") as w:
+        assert w.has("0")
+    assert path.stat().st_ino == inode
+    with st.SetWriter(path, title="t", description="d", generator="g") as w:
+        w.file.attrs["steps"] = "0-3"               # a change of the root attributes is saved
+    assert path.stat().st_ino != inode and st.set_info(path)["steps"] == "0-3"

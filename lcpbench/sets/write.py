@@ -271,8 +271,9 @@ class SetWriter:
         try:
             self._remove_orphans()
             self._load()
-            self._prepare()
-            self._save("create the set" if not self._target.exists() else "clean up the set")
+            if self._prepare() or not self._target.exists():
+                self._save("create the set" if not self._target.exists() else
+                           "clean up the set", changed=True)
         except BaseException:
             self._drop()
             lock.release()
@@ -335,8 +336,10 @@ class SetWriter:
                                  f"(no format={FORMAT!r} attribute); choose another path",
                                  path=self.path)
 
-    def _prepare(self) -> None:
+    def _prepare(self) -> bool:
+        """Root attributes and groups of a new set, stale groups removed; True if changed."""
         f = self._f
+        changed = "format" not in f.attrs or _INSTANCES not in f or _INCOMPLETE in f
         if "format" not in f.attrs:
             from lcpbench import __version__
             f.attrs.update({"format": FORMAT, "version": VERSION, "title": self.title,
@@ -354,6 +357,7 @@ class SetWriter:
                 warnings.warn(f"{self.path}: deleted {len(stale)} half-written instance(s) "
                               f"left by an interrupted writer: {', '.join(self.recovered)}; "
                               "they will be written again", RuntimeWarning, stacklevel=4)
+        return changed
 
     def _image(self) -> bytes:
         """The image as it stands (a copy: no view of the buffer outlives this call, so the
@@ -383,10 +387,16 @@ class SetWriter:
                 from exc
 
     def _on_disk(self, image: bytes) -> bool:
-        """True when the file holds ``image`` already."""
+        """True when the file holds ``image`` already (compared a mebibyte at a time)."""
         target = self._target
-        return target.exists() and target.stat().st_size == len(image) \
-            and target.read_bytes() == image
+        if not target.exists() or target.stat().st_size != len(image):
+            return False
+        view, step = memoryview(image), 1 << 20
+        with open(target, "rb") as fh:
+            for start in range(0, len(image), step):
+                if fh.read(step) != view[start:start + step]:
+                    return False
+        return True
 
     def _drop(self) -> None:
         if self._f is not None:

@@ -343,7 +343,10 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
             f.attrs.update({"name": name, "scene": scene_spec, "solver": solver,
                             "versions": json.dumps(_versions(), sort_keys=True),
                             "stop": stop, "tol": float(tol), **config})
-        f.attrs["steps"] = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
+        steps_text = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
+        old = f.attrs.get("steps")
+        if (old.decode() if isinstance(old, bytes) else old) != steps_text:
+            f.attrs["steps"] = steps_text        # unchanged, the set needs no rewrite
         todo = [s for s in wanted if instance_id(s) not in job.kept]
         if todo:
             _resume_scene(scene, job.ckpt_path, job.ckpt_config, todo[0])
