@@ -245,3 +245,17 @@ def test_the_shipped_sets_pass_every_check():
 
     for name, p in stored.shipped_sets().items():
         assert len(st.read_set(p)) == len(st.instance_ids(p)), name
+
+
+@pytest.mark.parametrize("rel", ["/instances/1/b", "low/p4/b", "notes"])
+def test_a_checksum_outside_the_layout_is_refused(tmp_path, rel):
+    """A manifest entry may not reach another instance (an absolute path) or smuggle in a
+    dataset the layout does not have."""
+    path = _set(tmp_path / "layout.h5")
+    with h5py.File(path, "a") as f:
+        g = f["instances/0"]
+        if not rel.startswith("/"):
+            g[rel] = np.ones(5)
+        g.attrs[f"sha256:{rel}"] = _digest(np.ones(5) if not rel.startswith("/") else
+                                           f["instances/1/b"][()])
+    _refused(path, f"dataset '{rel}'", "outside the stored-set layout")

@@ -8,6 +8,7 @@ more than the read budget (:func:`lcpbench.sets.read_budget`).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Iterable, Optional
 
@@ -24,6 +25,9 @@ from lcpbench.sets.guard import (ReadBudget, Where, check_links, dataset_bytes, 
                                  want_str, want_str_list)
 
 __all__ = ["read_set", "read_instance", "set_info", "instance_ids"]
+
+#: The datasets an instance may hold (what SetWriter writes).
+_LAYOUT = re.compile(r"^(A|b|x0|reference/[xw]|low/[A-Za-z0-9][A-Za-z0-9_.+=-]*/A)$")
 
 
 def _open(path: PathLike) -> h5py.File:
@@ -109,6 +113,9 @@ def _read_data(g: h5py.Group, attrs: dict, where: Where, budget: ReadBudget) -> 
     file_size = os.path.getsize(where.path)
     checked = {}
     for rel in manifest:
+        if not _LAYOUT.match(rel):
+            raise where.err("a checksum names a dataset outside the stored-set layout (A, b, "
+                            "x0, low/<name>/A, reference/x, reference/w)", rel)
         sha = want_sha(attrs, _SHA + rel, where)
         try:
             ds = g.get(rel)
