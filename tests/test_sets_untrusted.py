@@ -259,3 +259,12 @@ def test_a_checksum_outside_the_layout_is_refused(tmp_path, rel):
         g.attrs[f"sha256:{rel}"] = _digest(np.ones(5) if not rel.startswith("/") else
                                            f["instances/1/b"][()])
     _refused(path, f"dataset '{rel}'", "outside the stored-set layout")
+
+
+def test_a_hard_link_cycle_or_deeper_nesting_is_refused(tmp_path):
+    path = _set(tmp_path / "cycle.h5")
+    with h5py.File(path, "a") as f:
+        f["instances/0/low/loop"] = f["instances/0"]          # a hard link to its ancestor
+        f["instances/1"].create_group("reference/deeper/still")
+    _refused(path, "dataset 'low/loop/low'", "nested deeper")
+    _refused(path, "dataset 'reference/deeper/still'", "nested deeper", instance="1")

@@ -89,24 +89,27 @@ def hard_child(parent: h5py.Group, name: str, where: Where, dataset: Optional[st
                         dataset) from None
 
 
-def check_links(group: h5py.Group, where: Where) -> None:
-    """Every link below ``group`` must be a hard link (external and soft links are refused)."""
-    bad: list[tuple[str, str]] = []
-
-    def visit(name: str, link: Any) -> None:
-        kind = _link_kind(link)
-        if kind:
-            bad.append((name, kind))
-
-    try:
-        group.visititems_links(visit)
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise where.err(f"cannot list the instance's contents, the file is truncated or "
-                        f"corrupted ({exc})") from None
-    if bad:
-        name, kind = bad[0]
-        raise where.err(f"it is {kind}; a stored set holds its data itself and is read only "
-                        "through hard links", name)
+def check_links(group: h5py.Group, where: Where, *, depth: int = 3) -> None:
+    """Every link below ``group`` must be a hard link (external and soft links are refused),
+    and no group may lie deeper than ``depth`` levels (the layout's ``low/<name>/A`` is 3),
+    which also stops hard-link cycles. Links are inspected without being followed."""
+    stack = [("", group, 1)]
+    while stack:
+        prefix, g, level = stack.pop()
+        try:
+            names = list(g.keys())
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise where.err(f"cannot list the instance's contents, the file is truncated or "
+                            f"corrupted ({exc})", prefix.rstrip("/") or None) from None
+        for name in names:
+            rel = prefix + name
+            obj = hard_child(g, name, where, rel)
+            if not isinstance(obj, h5py.Group):
+                continue
+            if level >= depth:
+                raise where.err("a group nested deeper than the stored-set layout (A, b, x0, "
+                                "low/<name>/A, reference/x, reference/w)", rel)
+            stack.append((rel + "/", obj, level + 1))
 
 
 def dataset_bytes(ds: h5py.Dataset, rel: str, file_size: int, where: Where) -> int:
