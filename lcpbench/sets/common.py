@@ -80,7 +80,8 @@ _ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+=-]*$")
 
 #: The most bytes one read of untrusted data (a stored set's datasets, a checkpoint's
 #: arrays) may allocate, unless the environment variable :data:`READ_BUDGET_ENV` says
-#: otherwise: 2 GiB, twice the largest dense instance of n = 8000 contacts with two lows.
+#: otherwise: 2 GiB, room for a dense instance of n = 9000 contacts with two lows (three
+#: matrices of 618 MiB); the shipped instances take under 1 MiB each.
 READ_BUDGET = 2 << 30
 #: Environment variable overriding :data:`READ_BUDGET`: bytes, or with K, M, G or T.
 READ_BUDGET_ENV = "LCPBENCH_READ_BUDGET"
