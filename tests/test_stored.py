@@ -237,26 +237,28 @@ def test_half_written_group_is_deleted_and_reported(tmp_path):
 def test_killed_writer_leaves_a_recoverable_file(tmp_path):
     path = tmp_path / "set.h5"
     write_set(path, ids=("0",))
+    before = path.read_bytes()
     script = textwrap.dedent(f"""
-        import os, h5py, numpy as np
+        import os, numpy as np
         import lcpbench.sets as st
-        def die(self, *a, **k):
-            self.flush()
-            os._exit(3)                     # killed between writing and committing
-        h5py.File.move = die
+        import lcpbench.sets.write as sw
+        def die(fh, data):
+            fh.write(memoryview(data)[: len(data) // 2])
+            os._exit(3)                     # killed half-way through writing the new file
+        sw._write_all = die
         with st.SetWriter({str(path)!r}, title="t", description="d", generator="g") as w:
             w.write_instance("1", np.eye(3), np.ones(3))
     """)
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=60, check=False)
     assert proc.returncode == 3, proc.stderr
-    assert st.instance_ids(path) == ["0"]
-    with pytest.warns(RuntimeWarning, match="half-written"):
-        w = st.SetWriter(path, title="t", description="d", generator="g").open()
-    with w:
-        assert w.recovered == ["1"]
+    assert path.read_bytes() == before and st.instance_ids(path) == ["0"]
+    assert len(list(tmp_path.glob(".set.h5.tmp-*"))) == 1     # the half-written new file
+    with st.SetWriter(path, title="t", description="d", generator="g") as w:
+        assert w.recovered == [] and w.ids() == ["0"]
         w.write_instance("1", np.eye(3), np.ones(3))
     assert st.instance_ids(path) == ["0", "1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["set.h5"]
 
 
 def test_failed_write_leaves_no_trace(tmp_path, monkeypatch):

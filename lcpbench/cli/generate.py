@@ -23,7 +23,8 @@ def add_generate_parser(sub) -> None:
                     "an HDF5 set. Re-running into the same file resumes: instances already "
                     "in it are verified and kept, and the simulation continues from the "
                     "checkpoint FILE-stem.checkpoint.npz written beside the set after every "
-                    "step.")
+                    "step. A failed write (disk full) leaves the set as it was before that "
+                    "instance; the same command then resumes.")
     p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
                    help=f"scene spec (default {EXAMPLE_SCENE})")
     p.add_argument("--solver", default=DEFAULT_SOLVER, metavar="NAME[:k=v,...]",

@@ -5,11 +5,11 @@ the cost convention. Problem plugins read sets with :func:`read_set`; ``lcpbench
 writes them with :class:`SetWriter`.
 """
 
-from lcpbench.sets.common import (COST_CONVENTION, FORMAT, VERSION, StoredSetError,
-                                  parse_instances, set_problem_name)
+from lcpbench.sets.common import (COST_CONVENTION, FORMAT, READ_BUDGET, VERSION, StoredSetError,
+                                  human_bytes, parse_instances, read_budget, set_problem_name)
 from lcpbench.sets.read import instance_ids, read_instance, read_set, set_info
 from lcpbench.sets.write import SetWriter
 
 __all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "parse_instances", "set_problem_name", "FORMAT", "VERSION",
-           "COST_CONVENTION"]
+           "COST_CONVENTION", "READ_BUDGET", "read_budget", "human_bytes"]

@@ -1,9 +1,16 @@
-"""Reading stored sets, verified: format, version, presence, shape and checksum of every dataset."""
+"""Reading stored sets, verified: format, version, presence, shape and checksum of every dataset.
+
+Every file is treated as untrusted (:mod:`lcpbench.sets.guard`): links, storage, types and
+sizes are checked before any dataset is read, and the datasets one call returns never take
+more than the read budget (:func:`lcpbench.sets.read_budget`).
+"""
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Iterable, Optional
 
 import h5py
 import numpy as np
@@ -11,34 +18,16 @@ import numpy as np
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import Operator
 from lcpbench.core.registry import stored_sets
-from lcpbench.sets.common import (_INCOMPLETE, _INSTANCES, _SHA, FORMAT, VERSION, PathLike, StoredSetError,
-                                  _digest)
+from lcpbench.sets.common import (_INCOMPLETE, _INSTANCES, _SHA, FORMAT, VERSION, PathLike,
+                                  StoredSetError, _digest, _err, read_budget)
+from lcpbench.sets.guard import (ReadBudget, Where, check_links, dataset_bytes, hard_child,
+                                 read_attrs, want_bool, want_float, want_int, want_sha,
+                                 want_str, want_str_list)
 
 __all__ = ["read_set", "read_instance", "set_info", "instance_ids"]
 
-
-def _py(value: Any) -> Any:
-    """An attribute read back as a plain Python value."""
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.ndarray):
-        return [_py(v) for v in value.tolist()] if value.dtype == object else value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-
-def _err(path, msg, instance=None, dataset=None, generator=None) -> StoredSetError:
-    where = f"{path}"
-    if instance is not None:
-        where += f", instance {instance!r}"
-    if dataset is not None:
-        where += f", dataset {dataset!r}"
-    fix = (f" Regenerate the file with: {generator}" if generator else
-           " Regenerate the file with the command that made it")
-    return StoredSetError(f"{where}: {msg}.{fix}", path=path, instance=instance,
-                          dataset=dataset)
+#: The datasets an instance may hold (what SetWriter writes).
+_LAYOUT = re.compile(r"^(A|b|x0|reference/[xw]|low/[A-Za-z0-9][A-Za-z0-9_.+=-]*/A)$")
 
 
 def _open(path: PathLike) -> h5py.File:
@@ -56,29 +45,43 @@ def _open(path: PathLike) -> h5py.File:
             from None
 
 
-def _check_root(f: h5py.File, path: PathLike) -> None:
-    fmt = _py(f.attrs.get("format"))
-    gen = _py(f.attrs.get("generator"))
+def _check_root(f: h5py.File, path: PathLike) -> dict:
+    """Check the root of a set (format, version, the instances group); its attributes."""
+    attrs = read_attrs(f, Where(path))
+    fmt = attrs.get("format")
+    gen = attrs.get("generator")
     if fmt != FORMAT:
         raise StoredSetError(f"{path}: not an lcpbench stored set (format attribute "
                              f"{fmt!r}, expected {FORMAT!r})", path=path)
-    ver = _py(f.attrs.get("version"))
-    if not isinstance(ver, int) or ver < 1:
-        raise _err(path, f"invalid version attribute {ver!r}", generator=gen)
+    if gen is not None and not isinstance(gen, str):
+        raise _err(path, f"attribute 'generator' must be text, got {gen!r}")
+    where = Where(path, generator=gen)
+    ver = attrs.get("version")
+    if isinstance(ver, bool) or not isinstance(ver, int) or ver < 1:
+        raise where.err(f"invalid version attribute {ver!r}")
     if ver > VERSION:
         raise StoredSetError(f"{path}: layout version {ver} is newer than this lcpbench "
                              f"reads ({VERSION}); upgrade lcpbench", path=path)
-    if _INSTANCES not in f:
-        raise _err(path, "the /instances group is missing", generator=gen)
+    group = hard_child(f, _INSTANCES, where)
+    if not isinstance(group, h5py.Group):
+        raise where.err("the /instances group is missing")
+    return attrs
+
+
+def _ids(f: h5py.File, name: str, path: PathLike) -> list[str]:
+    try:
+        return list(f[name].keys())
+    except (OSError, RuntimeError, KeyError) as exc:
+        raise _err(path, f"cannot list the /{name} group ({exc})") from None
 
 
 def set_info(path: PathLike) -> dict:
     """Root attributes of a stored set (format, version, title, generator, ...) and ``ids``."""
     with _open(path) as f:
-        _check_root(f, path)
-        info = {k: _py(v) for k, v in f.attrs.items()}
-        info["ids"] = list(f[_INSTANCES].keys())
-        info["incomplete"] = list(f[_INCOMPLETE].keys()) if _INCOMPLETE in f else []
+        info = _check_root(f, path)
+        info["ids"] = _ids(f, _INSTANCES, path)
+        stale = hard_child(f, _INCOMPLETE, Where(path, generator=info.get("generator")))
+        info["incomplete"] = _ids(f, _INCOMPLETE, path) if stale is not None else []
     return info
 
 
@@ -87,79 +90,105 @@ def instance_ids(path: PathLike) -> list[str]:
     return set_info(path)["ids"]
 
 
-def _read_dataset(g: h5py.Group, rel: str, shape: tuple, path, iid, gen) -> np.ndarray:
-    if rel not in g:
-        raise _err(path, "dataset is missing (listed in the instance's checksums)", iid, rel,
-                   gen)
-    ds = g[rel]
-    if not isinstance(ds, h5py.Dataset):
-        raise _err(path, "expected a dataset, found a group", iid, rel, gen)
-    if tuple(ds.shape) != shape:
-        raise _err(path, f"shape {tuple(ds.shape)}, expected {shape}", iid, rel, gen)
+def _read_dataset(ds: h5py.Dataset, rel: str, sha: str, where: Where) -> np.ndarray:
+    """The data of ``ds`` (checked by :func:`dataset_bytes` already), its checksum verified."""
     try:
         arr = ds[()]
-    except (OSError, ValueError, RuntimeError) as exc:
-        raise _err(path, f"cannot read the data, the file is truncated or corrupted ({exc})",
-                   iid, rel, gen) from None
-    want = _py(g.attrs[_SHA + rel])
+    except (OSError, ValueError, RuntimeError, TypeError) as exc:
+        raise where.err(f"cannot read the data, the file is truncated or corrupted ({exc})",
+                        rel) from None
     got = _digest(arr)
-    if got != want:
-        raise _err(path, f"checksum mismatch (sha256 {got[:12]}..., stored {want[:12]}...): "
-                   "the data was changed or corrupted", iid, rel, gen)
+    if got != sha:
+        raise where.err(f"checksum mismatch (sha256 {got[:12]}..., stored {sha[:12]}...): "
+                        "the data was changed or corrupted", rel)
     return np.asarray(arr, dtype=np.float64)
 
 
-def _load(f: h5py.File, path: Path, iid: str, **lcp_kwargs) -> LCP:
-    gen = _py(f.attrs.get("generator"))
-    if iid not in f[_INSTANCES]:
-        raise StoredSetError(f"{path}: no instance {iid!r}; the file holds "
-                             f"{', '.join(list(f[_INSTANCES].keys())[:20]) or 'none'}",
-                             path=path, instance=iid)
-    try:
-        g = f[_INSTANCES][iid]
-        attrs = {k: _py(v) for k, v in g.attrs.items()}
-    except (OSError, KeyError, RuntimeError) as exc:
-        raise _err(path, f"cannot read the instance group ({exc})", iid, None, gen) from None
+def _read_data(g: h5py.Group, attrs: dict, where: Where, budget: ReadBudget) -> dict:
+    """Every dataset listed in the instance's checksums, each checked before it is read."""
     if "n" not in attrs:
-        raise _err(path, "instance attribute 'n' is missing", iid, None, gen)
-    n = int(attrs.pop("n"))
+        raise where.err("instance attribute 'n' is missing")
+    n = want_int(attrs, "n", where)
     manifest = sorted(k[len(_SHA):] for k in attrs if k.startswith(_SHA))
     for req in ("A", "b"):
         if req not in manifest:
-            raise _err(path, "no checksum recorded for a required dataset", iid, req, gen)
-    meta = {k: v for k, v in attrs.items() if not k.startswith(_SHA)}
-    data = {}
+            raise where.err("no checksum recorded for a required dataset", req)
+    file_size = os.path.getsize(where.path)
+    checked = {}
     for rel in manifest:
+        if not _LAYOUT.match(rel):
+            raise where.err("a checksum names a dataset outside the stored-set layout (A, b, "
+                            "x0, low/<name>/A, reference/x, reference/w)", rel)
+        sha = want_sha(attrs, _SHA + rel, where)
+        try:
+            ds = g.get(rel)
+        except (OSError, RuntimeError, KeyError, ValueError) as exc:
+            raise where.err(f"cannot open the dataset ({exc})", rel) from None
+        if ds is None:
+            raise where.err("dataset is missing (listed in the instance's checksums)", rel)
+        if not isinstance(ds, h5py.Dataset):
+            raise where.err("expected a dataset, found a group", rel)
         shape = (n, n) if rel == "A" or rel.endswith("/A") else (n,)
-        data[rel] = _read_dataset(g, rel, shape, path, iid, gen)
+        got = None if ds.shape is None else tuple(ds.shape)     # None: an empty dataspace
+        if got != shape:
+            raise where.err(f"shape {got}, expected {shape}", rel)
+        budget.take(dataset_bytes(ds, rel, file_size, where), where, rel)
+        checked[rel] = (ds, sha)
     # Datasets present but not in the manifest were not written by SetWriter.
     extra = []
-    g.visit(lambda name: extra.append(name) if isinstance(g[name], h5py.Dataset)
-            and name not in data else None)
+    g.visititems(lambda name, obj: extra.append(name) if isinstance(obj, h5py.Dataset)
+                 and name not in checked else None)
     if extra:
-        raise _err(path, f"datasets without a checksum: {', '.join(extra)}", iid, extra[0], gen)
+        raise where.err(f"datasets without a checksum: {', '.join(extra)}", extra[0])
+    return {rel: _read_dataset(ds, rel, sha, where) for rel, (ds, sha) in checked.items()}
+
+
+def _reference(g: h5py.Group, data: dict, where: Where) -> Optional[dict]:
+    if "reference/x" not in data or "reference/w" not in data:
+        return None
+    ra = read_attrs(g["reference"], where, "reference")
+    x, w = data["reference/x"], data["reference/w"]
+
+    def number(key: str, default: float) -> float:
+        return want_float(ra, key, where, "reference") if key in ra else default
+
+    return {"x": x, "w": w,
+            "objective": number("objective", float(0.5 * x @ (w + data["b"]))),
+            "solvers": want_str_list(ra, "solvers", where, "reference")
+            if "solvers" in ra else ["stored"],
+            "kkt_abs": number("kkt_abs", np.nan),
+            "disagreement": number("disagreement", np.nan),
+            "accepted": want_bool(ra, "accepted", where, "reference")
+            if "accepted" in ra else True}
+
+
+def _load(f: h5py.File, path: Path, iid: str, gen: Optional[str], budget: ReadBudget,
+          **lcp_kwargs) -> LCP:
+    where = Where(path, iid, gen)
+    g = hard_child(f[_INSTANCES], iid, where)
+    if g is None:
+        raise StoredSetError(f"{path}: no instance {iid!r}; the file holds "
+                             f"{', '.join(_ids(f, _INSTANCES, path)[:20]) or 'none'}",
+                             path=path, instance=iid)
+    if not isinstance(g, h5py.Group):
+        raise where.err("expected an instance group, found a dataset")
+    check_links(g, where)
+    attrs = read_attrs(g, where)
+    data = _read_data(g, attrs, where, budget)
+    n = attrs.pop("n")
+    meta = {k: v for k, v in attrs.items() if not k.startswith(_SHA)}
     low = {}
     low_meta = {}
-    for rel in manifest:
+    for rel in data:
         if rel.startswith("low/"):
             name = rel.split("/")[1]
-            la = {k: _py(v) for k, v in g[f"low/{name}"].attrs.items()}
+            la = read_attrs(g[f"low/{name}"], where, f"low/{name}")
             if "cost_ratio" not in la:
-                raise _err(path, "attribute cost_ratio is missing", iid, f"low/{name}", gen)
-            ratio = float(la["cost_ratio"])
-            low[name] = Operator(data[rel], cost=ratio * 1.0, name=name)
+                raise where.err("attribute cost_ratio is missing", f"low/{name}")
+            ratio = want_float(la, "cost_ratio", where, f"low/{name}", positive=True)
+            low[name] = Operator(data[rel], cost=ratio, name=name)
             low_meta[name] = la
-    reference = None
-    if "reference/x" in data and "reference/w" in data:
-        ra = {k: _py(v) for k, v in g["reference"].attrs.items()}
-        x, w = data["reference/x"], data["reference/w"]
-        reference = {"x": x, "w": w,
-                     "objective": float(ra.get("objective", 0.5 * x @ (w + data["b"]))),
-                     "solvers": list(ra.get("solvers", ["stored"])) if not
-                     isinstance(ra.get("solvers"), str) else [ra["solvers"]],
-                     "kkt_abs": float(ra.get("kkt_abs", np.nan)),
-                     "disagreement": float(ra.get("disagreement", np.nan)),
-                     "accepted": bool(ra.get("accepted", True))}
+    reference = _reference(g, data, where)
     meta.update({"family": meta.get("family", "stored"), "n": n, "instance": iid,
                  "set": path.stem, "source": str(path)})
     if low_meta:
@@ -168,17 +197,20 @@ def _load(f: h5py.File, path: Path, iid: str, **lcp_kwargs) -> LCP:
         return LCP(Operator(data["A"], cost=1.0), data["b"], x0=data.get("x0"), low=low,
                    name=f"{path.stem}/{iid}", meta=meta, reference=reference, **lcp_kwargs)
     except (ValueError, TypeError) as exc:
-        raise _err(path, f"the stored data is not a valid LCP ({exc})", iid, None, gen) \
-            from None
+        raise where.err(f"the stored data is not a valid LCP ({exc})") from None
 
 
-def read_instance(path: PathLike, instance_id: str, **lcp_kwargs) -> LCP:
+def read_instance(path: PathLike, instance_id: str, *, budget: Optional[int] = None,
+                  **lcp_kwargs) -> LCP:
     """Read and verify one instance of a stored set.
 
     Parameters
     ----------
     path : str or Path
     instance_id : str
+    budget : int, optional
+        Most bytes the instance's data may take in memory; default the read budget
+        (:func:`lcpbench.sets.read_budget`: ``$LCPBENCH_READ_BUDGET`` or 2 GiB).
     **lcp_kwargs
         Passed to :class:`~lcpbench.LCP` (e.g. ``psd_check=False``).
 
@@ -186,22 +218,26 @@ def read_instance(path: PathLike, instance_id: str, **lcp_kwargs) -> LCP:
     -------
     LCP
         High operator with declared cost 1.0, low operators with cost ``cost_ratio``
-        (module docstring), ``reference`` from the stored reference, ``meta`` from the
-        instance attrs (plus ``instance``, ``set``, ``source`` and ``low`` attrs).
+        (module docstring of :mod:`lcpbench.sets.common`), ``reference`` from the stored
+        reference, ``meta`` from the instance attrs (plus ``instance``, ``set``,
+        ``source`` and ``low`` attrs).
 
     Raises
     ------
     StoredSetError
         Naming the file, instance and dataset, for a truncated file, a checksum or
-        shape mismatch, a missing dataset, or an unknown instance.
+        shape mismatch, a missing dataset, an unknown instance, a link or storage outside
+        the file, complex data, a bad attribute, or data over the budget.
     """
     p = Path(path)
+    limit = ReadBudget(read_budget(budget))
     with _open(p) as f:
-        _check_root(f, p)
-        return _load(f, p, str(instance_id), **lcp_kwargs)
+        gen = _check_root(f, p).get("generator")
+        return _load(f, p, str(instance_id), gen, limit, **lcp_kwargs)
 
 
-def read_set(path: PathLike, ids: Optional[Iterable[str]] = None, **lcp_kwargs) -> list[LCP]:
+def read_set(path: PathLike, ids: Optional[Iterable[str]] = None, *,
+             budget: Optional[int] = None, **lcp_kwargs) -> list[LCP]:
     """Read and verify every (or the given) instance of a stored set, in written order.
 
     Parameters
@@ -209,6 +245,9 @@ def read_set(path: PathLike, ids: Optional[Iterable[str]] = None, **lcp_kwargs) 
     path : str or Path
     ids : iterable of str, optional
         Subset of instance ids; default all.
+    budget : int, optional
+        Most bytes the data of all the instances read may take in memory; default the
+        read budget (:func:`lcpbench.sets.read_budget`).
     **lcp_kwargs
         Passed to :class:`~lcpbench.LCP`.
 
@@ -218,12 +257,8 @@ def read_set(path: PathLike, ids: Optional[Iterable[str]] = None, **lcp_kwargs) 
         As :func:`read_instance`; nothing is dropped silently.
     """
     p = Path(path)
+    limit = ReadBudget(read_budget(budget))
     with _open(p) as f:
-        _check_root(f, p)
-        try:
-            all_ids = list(f[_INSTANCES].keys())
-        except (OSError, RuntimeError) as exc:
-            raise _err(p, f"cannot list instances ({exc})",
-                       generator=_py(f.attrs.get("generator"))) from None
-        chosen = all_ids if ids is None else [str(i) for i in ids]
-        return [_load(f, p, iid, **lcp_kwargs) for iid in chosen]
+        gen = _check_root(f, p).get("generator")
+        chosen = _ids(f, _INSTANCES, p) if ids is None else [str(i) for i in ids]
+        return [_load(f, p, iid, gen, limit, **lcp_kwargs) for iid in chosen]

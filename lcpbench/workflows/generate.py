@@ -37,6 +37,13 @@ settings (scene, solver, stop rule, tolerance, budget) are the same and no step
 still to be stored lies before it. Otherwise the rerun says why and simulates
 from step 0. The checkpoint stays after the run, so a longer ``--steps`` range
 appends without re-simulating either; delete it to reclaim its few kilobytes.
+
+A write that fails (disk full, I/O error) leaves the set as it was before that
+instance (:class:`~lcpbench.sets.SetWriter` replaces the file atomically after
+each instance) and the checkpoint at the step before it, and raises
+:class:`~lcpbench.sets.StoredSetError` (``OSError`` for the checkpoint) with one
+line saying so; with space again the same command resumes. Only one run writes a
+set at a time.
 """
 
 from __future__ import annotations
@@ -284,12 +291,13 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     KeyError, TypeError, ValueError
         Bad scene, solver, step or fidelity; a file generated with other settings.
     lcpbench.sets.StoredSetError
-        The existing file is truncated or corrupted (names instance and dataset).
+        The existing file is truncated or corrupted (names instance and dataset), another
+        run writes it, or an instance could not be written (the set keeps every finished
+        instance; rerun to resume).
+    OSError
+        The checkpoint could not be written (the previous one is kept; rerun to resume).
     """
     import time
-
-    from tqdm.auto import tqdm
-
 
     t_start = time.perf_counter()
     wanted = parse_steps(steps)
@@ -311,72 +319,115 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
     name = name or out.stem
     params_json = json.dumps(dataclasses.asdict(base), sort_keys=True, default=str)
     config = {"scene_params": params_json, "solver": solver, "lows": json.dumps(lows)}
+    generator, title, description = _texts(
+        scene_spec, scene.M, solver=solver, lows=lows, wanted=wanted, out=out, name=name,
+        stop=stop, tol=tol, argv=argv, title=title, description=description)
+    if out.exists() and out.stat().st_size > 0:   # verify what a resume would keep
+        have = set(instance_ids(out))
+        for s in wanted:
+            if instance_id(s) in have:
+                read_instance(out, instance_id(s))
+    job = _Job(scene_spec=scene_spec, solver=solver, lows=lows, stop=stop, tol=float(tol),
+               budget=Budget(max_emvps=max_emvps), with_lows=with_lows,
+               sim_params=sim_params, ckpt_path=checkpoint_file(out), ckpt_config={
+                   "scene": parse_spec(scene_spec)[0], "scene_params": json.dumps(
+                       dataclasses.asdict(sim_params), sort_keys=True, default=str),
+                   "solver": solver, "stop": stop, "tol": float(tol),
+                   "max_emvps": float(max_emvps)})
+    with SetWriter(out, title=title, description=description, generator=generator,
+                   compression=compression) as w:
+        f = w.file
+        _check_resume(f, out, config)
+        job.kept = [instance_id(s) for s in wanted if w.has(instance_id(s))]
+        if "scene" not in f.attrs:
+            f.attrs.update({"name": name, "scene": scene_spec, "solver": solver,
+                            "versions": json.dumps(_versions(), sort_keys=True),
+                            "stop": stop, "tol": float(tol), **config})
+        steps_text = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
+        old = f.attrs.get("steps")
+        if (old.decode() if isinstance(old, bytes) else old) != steps_text:
+            f.attrs["steps"] = steps_text        # unchanged, the set needs no rewrite
+        todo = [s for s in wanted if instance_id(s) not in job.kept]
+        if todo:
+            _resume_scene(scene, job.ckpt_path, job.ckpt_config, todo[0])
+        try:
+            simulated = _simulate(w, scene, job, todo, desc=f"generate {name}",
+                                  progress=progress)
+        finally:
+            scene.params = base
+    return GenerateSummary(path=out, written=job.written, kept=job.kept, simulated=simulated,
+                           references_rejected=job.rejected,
+                           seconds=time.perf_counter() - t_start)
+
+
+def _texts(scene_spec: str, M: int, *, solver: str, lows: Sequence[str], wanted: list,
+           out: Path, name: str, stop: str, tol: float, argv: Optional[Sequence[str]],
+           title: Optional[str], description: Optional[str]) -> tuple[str, str, str]:
+    """The set's ``generator``, ``title`` and ``description`` (given ones kept)."""
     generator = portable_command(argv) if argv else (
         f"lcpbench generate --scene {shlex.quote(scene_spec)} --solver {shlex.quote(solver)} "
         f"--steps {_steps_text(wanted)} " + "".join(f"--low {x} " for x in lows)
         + f"--name {shlex.quote(name)} --out {shlex.quote(out.name)}")
     title = title or f"{name}: dense LCPs of {scene_spec}, steps {_steps_text(wanted)}"
     description = description or (
-        f"Scene {scene_spec} ({scene.M} particles) simulated with "
+        f"Scene {scene_spec} ({M} particles) simulated with "
         f"{solver} (stop {stop}, tol {tol:g}); for each stored step the dense high-fidelity "
         f"A = D'MD (n MVPs, symmetrised), b, the warm start, the low fidelities "
         f"{', '.join(lows) or 'none'} with cost_ratio = t_low / t_high measured on the "
         "instance, and the QP consensus reference.")
-    budget = Budget(max_emvps=max_emvps)
-    written, rejected = [], []
-    if out.exists() and out.stat().st_size > 0:   # verify what a resume would keep
-        have = set(instance_ids(out))
-        for s in wanted:
-            if instance_id(s) in have:
-                read_instance(out, instance_id(s))
-    with SetWriter(out, title=title, description=description, generator=generator,
-                   compression=compression) as w:
-        f = w.file
-        _check_resume(f, out, config)
-        kept = [instance_id(s) for s in wanted if w.has(instance_id(s))]
-        if "scene" not in f.attrs:
-            f.attrs.update({"name": name, "scene": scene_spec, "solver": solver,
-                            "versions": json.dumps(_versions(), sort_keys=True),
-                            "stop": stop, "tol": float(tol), **config})
-        f.attrs["steps"] = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
-        todo = [s for s in wanted if instance_id(s) not in kept]
-        last_needed = todo[-1] if todo else -1
-        ckpt_path = checkpoint_file(out)
-        ckpt_config = {"scene": parse_spec(scene_spec)[0], "scene_params": json.dumps(
-            dataclasses.asdict(sim_params), sort_keys=True, default=str), "solver": solver,
-            "stop": stop, "tol": float(tol), "max_emvps": float(max_emvps)}
-        if todo:
-            _resume_scene(scene, ckpt_path, ckpt_config, todo[0])
-        bar = tqdm(total=last_needed + 1, initial=min(scene.step_index, last_needed + 1),
-                   desc=f"generate {name}", unit="step", disable=not progress,
-                   file=sys.stderr)
-        simulated = 0
-        try:
-            while scene.step_index <= last_needed:
-                k = scene.step_index
-                store = k in todo
-                scene.params = with_lows if store else sim_params
-                # forward operator only: the stored matrices are (A + A')/2 of n forward
-                # products (the live symmetrised operator would cost 2n solves)
-                problem = scene.build(warm_start=True, symmetrize=False)
-                lcp = problem.lcp
-                if store:
-                    _write_step(w, scene, problem, k, scene_spec, lows, consensus, written,
-                                rejected)
-                res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget)
-                scene.advance(problem, res.x)
-                save_checkpoint(ckpt_path, Checkpoint(step=k, config=ckpt_config,
+    return generator, title, description
+
+
+@dataclasses.dataclass
+class _Job:
+    """What the step loop of :func:`generate` needs, and what it reports back."""
+
+    scene_spec: str
+    solver: str
+    lows: list
+    stop: str
+    tol: float
+    budget: Budget
+    with_lows: object                    # scene parameters with the lows (stored steps)
+    sim_params: object                   # scene parameters of the simulation
+    ckpt_path: Path
+    ckpt_config: dict
+    kept: list = dataclasses.field(default_factory=list)
+    written: list = dataclasses.field(default_factory=list)
+    rejected: list = dataclasses.field(default_factory=list)
+
+
+def _simulate(w: SetWriter, scene, job: _Job, todo: list, *, desc: str,
+              progress: bool) -> int:
+    """Simulate up to the last step of ``todo``, writing those steps; the steps simulated."""
+    from tqdm.auto import tqdm
+
+    last_needed = todo[-1] if todo else -1
+    bar = tqdm(total=last_needed + 1, initial=min(scene.step_index, last_needed + 1),
+               desc=desc, unit="step", disable=not progress, file=sys.stderr)
+    simulated = 0
+    try:
+        while scene.step_index <= last_needed:
+            k = scene.step_index
+            store = k in todo
+            scene.params = job.with_lows if store else job.sim_params
+            # forward operator only: the stored matrices are (A + A')/2 of n forward
+            # products (the live symmetrised operator would cost 2n solves)
+            problem = scene.build(warm_start=True, symmetrize=False)
+            lcp = problem.lcp
+            if store:
+                _write_step(w, scene, problem, k, job)
+            res = run_solver(lcp, job.solver, stop=job.stop, tol=job.tol, budget=job.budget)
+            scene.advance(problem, res.x)
+            save_checkpoint(job.ckpt_path, Checkpoint(step=k, config=job.ckpt_config,
                                                       scene_state=scene.get_state(),
                                                       row={"step": k}))
-                simulated += 1
-                bar.set_postfix(step=k, n=lcp.n, stored=len(written) + len(kept))
-                bar.update(1)
-        finally:
-            bar.close()
-            scene.params = base
-    return GenerateSummary(path=out, written=written, kept=kept, simulated=simulated,
-                           references_rejected=rejected,
-                           seconds=time.perf_counter() - t_start)
+            simulated += 1
+            bar.set_postfix(step=k, n=lcp.n, stored=len(job.written) + len(job.kept))
+            bar.update(1)
+    finally:
+        bar.close()
+    return simulated
 
 
 def checkpoint_file(out: Union[str, Path]) -> Path:
@@ -435,9 +486,9 @@ def _steps_text(steps: Sequence[int]) -> str:
     return ",".join(parts)
 
 
-def _write_step(w, scene, problem, k: int, scene_spec: str, lows: Sequence[str], consensus,
-                written: list, rejected: list) -> None:
+def _write_step(w: SetWriter, scene, problem, k: int, job: _Job) -> None:
     """Form and write the dense instance of step ``k``."""
+    scene_spec, lows = job.scene_spec, job.lows
     lcp = problem.lcp
     n = lcp.n
     P = scene.params
@@ -461,6 +512,6 @@ def _write_step(w, scene, problem, k: int, scene_spec: str, lows: Sequence[str],
     x0 = lcp.x0 if lcp.x0 is not None and np.any(lcp.x0) else None
     iid = instance_id(k)
     w.write_instance(iid, A, lcp.b, low=low, x0=x0, reference=ref, attrs=attrs)
-    written.append(iid)
+    job.written.append(iid)
     if not ref.accepted:
-        rejected.append(iid)
+        job.rejected.append(iid)
