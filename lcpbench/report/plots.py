@@ -17,17 +17,40 @@ import pandas as pd
 
 __all__ = ["boxplot_svg", "grouped_boxplot_svg", "curves_svg", "profile_svg",
            "work_precision_svg", "set_overview_svg", "prefix_ids", "svg_of", "figure",
-           "WIDTH", "LEGEND_PT", "STYLE"]
+           "WIDTH", "LEGEND_PT", "STYLE", "literal"]
 
 #: Width of every figure in inches (864 CSS pixels: SVG sizes are in points).
 WIDTH = 9.0
 #: Legend font size in points (11.3 CSS pixels at the figure's natural size).
 LEGEND_PT = 8.5
-#: The report's matplotlib style. ``text.parse_math`` off: a ``$`` in a label (a file
-#: name such as ``set_$m$.h5``) is drawn as written, never parsed as mathtext;
-#: ``svg.fonttype`` ``none``: text stays text in the SVG (searchable, smaller).
-STYLE = {"svg.hashsalt": "lcpbench", "font.size": 9, "text.parse_math": False,
-         "svg.fonttype": "none", "legend.fontsize": LEGEND_PT}
+#: The report's matplotlib style. ``svg.fonttype`` ``none``: text stays text in the SVG
+#: (searchable, smaller, sized by the browser).
+STYLE = {"svg.hashsalt": "lcpbench", "font.size": 9, "svg.fonttype": "none",
+         "legend.fontsize": LEGEND_PT}
+
+
+def literal(text) -> str:
+    """``text`` escaped for matplotlib's mathtext: every ``$`` drawn as a dollar sign.
+
+    A label such as the set file name ``set_$m_3_4$.h5`` would otherwise be parsed as
+    mathtext (and fail on its double subscript). Already escaped dollars stay as they are.
+    """
+    return re.sub(r"(?<!\\)\$", r"\\$", str(text))
+
+
+def _escape_texts(fig) -> None:
+    """Escape every text of ``fig`` for mathtext (:func:`literal`), tick formatters' aside.
+
+    Titles, axis labels, legend entries and fixed tick labels come from the data
+    (solver, set and file names); the log axes' own tick labels are mathtext made by
+    matplotlib and are left alone (they are re-made at every draw anyway).
+    """
+    from matplotlib.text import Text
+
+    for text in fig.findobj(Text):
+        s = text.get_text()
+        if "$" in s and not s.startswith("$\\mathdefault"):
+            text.set_text(literal(s))
 
 
 def figure(width: float = WIDTH, height: float = 3.8, ncols: int = 1, nrows: int = 1):
@@ -53,14 +76,12 @@ def svg_of(fig, *, margins: dict | None = None) -> str:
     """A matplotlib figure as inline SVG text (closed afterwards; no date, stable ids).
 
     ``margins`` (``subplots_adjust`` keywords) lay the figure out at once; without
-    them it gets a tight layout. Every text of the figure is drawn literally (mathtext
-    off, also for a text made before :data:`STYLE` was set).
+    them it gets a tight layout. Every text of the figure is escaped for mathtext
+    (:func:`literal`), so a ``$`` in a name is drawn as written.
     """
     import matplotlib.pyplot as plt
-    from matplotlib.text import Text
 
-    for text in fig.findobj(Text):
-        text.set_parse_math(False)
+    _escape_texts(fig)
     buf = io.StringIO()
     with plt.rc_context(STYLE):
         if margins:
@@ -137,7 +158,7 @@ def boxplot_svg(data: pd.DataFrame, by: str, value: str, title: str, ylabel: str
     else:
         ax.text(0.5, 0.5, "no solved run", ha="center", va="center", transform=ax.transAxes)
     ax.set_xticks(range(1, len(labels) + 1))
-    ax.set_xticklabels(labels, rotation=35, ha="right")
+    ax.set_xticklabels([literal(x) for x in labels], rotation=35, ha="right")
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
     ax.set_title(title)
@@ -194,7 +215,7 @@ def grouped_boxplot_svg(data: pd.DataFrame, group: str, by: str, value: str, tit
                 transform=ax.transAxes)
     ax.set_xlim(0.4, len(groups) + 0.6)
     ax.set_xticks(range(1, len(groups) + 1))
-    ax.set_xticklabels([str(g) for g in groups])
+    ax.set_xticklabels([literal(g) for g in groups])
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
