@@ -283,8 +283,11 @@ def _wp_panel(ax, wp: pd.DataFrame, prefix: str, palette: dict, xlabel: str,
         if pts:
             ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=palette[row["solver"]],
                     lw=1.6, ms=4, label=row["solver"])
+    from matplotlib.ticker import NullFormatter
+
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())     # minor labels would overlap
     ax.set_xlabel(xlabel)
     ax.set_ylabel("residual level reached")
     ax.grid(alpha=0.3)
