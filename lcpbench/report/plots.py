@@ -171,8 +171,8 @@ def _svg_id(text: str) -> str:
 
 
 def grouped_boxplot_svg(data: pd.DataFrame, group: str, by: str, value: str, title: str,
-                        xlabel: str, ylabel: str, groups: list | None = None,
-                        order: list | None = None, log: bool = True, *,
+                        xlabel: str, ylabel: str, *, groups: list | None = None,
+                        order: list | None = None, log: bool = True,
                         colors: dict | None = None) -> str:
     """Boxes of ``value`` grouped along x by ``group``, one box per ``by`` in each group.
 

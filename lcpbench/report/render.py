@@ -146,34 +146,10 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     colors = solver_colors(res["solver"].astype(str).unique()) if len(res) else {}
     say("offline tables and figures, per problem set")
     _write_table(tdir, "offline", tables.offline_table(res))
-    views = offline.set_views(res, hist)
     toc: list[tuple[str, str, int]] = []
     body: list[str] = []
-    if views:
-        summary = offline.summary_table(views, meta)
-        write("summary", summary)
-        toc.append(("summary", "Summary", 2))
-        body.append("<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
-                    "problem size n, the instances compared (those every compared solver "
-                    "was given, of the set's), the solvers compared, and at each residual "
-                    "level the solver with the lowest shifted geometric mean of the E-MVPs "
-                    "to first reach it (a run that never reached it counts at the penalty): "
-                    "its median E-MVPs over its runs that reached the level, and how many "
-                    "did.</p>" + _table_html(summary, text=True))
-    toc.append(("run", "Run", 2))
-    body.append(_meta_section(meta, res))
-    if views:
-        toc.append(("offline", "Offline comparison, per problem set", 2))
-        shift = offline.ranking.SHIFT["emvps"]
-        body.append("<h2 id='offline'>Offline comparison, per problem set</h2><p class='note'>"
-                    + offline.CONVENTIONS.format(shift_e=shift)
-                    + f" The baseline of the ratios is {html.escape(baseline)}.</p>")
-        for k, view in enumerate(views):
-            say(f"problem set {k + 1}/{len(views)}: {view.problem}")
-            toc.append((_anchor(k), view.problem, 3))
-            body.append(offline.set_section(view, baseline=baseline, meta=meta, colors=colors,
-                                            anchor=_anchor(k), fig=fig, table_html=_table_html,
-                                            write=write))
+    _offline_parts(res, hist, meta, toc, body, baseline=baseline, colors=colors, fig=fig,
+                   write=write, say=say)
     refs = offline.references_section(res, _table_html, write)
     if refs:
         toc.append(("references", "Reference QP solvers", 2))
@@ -212,6 +188,40 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     atomic_write(out, page)
     say(f"wrote {out}")
     return out
+
+
+def _offline_parts(res: pd.DataFrame, hist: pd.DataFrame, meta: dict, toc: list, body: list,
+                   *, baseline: str, colors: dict, fig: Callable[[str], str],
+                   write: Callable[[str, pd.DataFrame], None],
+                   say: Callable[[str], None]) -> None:
+    """Append the summary, the run's metadata and one section per problem set to ``body``."""
+    views = offline.set_views(res, hist)
+    if views:
+        summary = offline.summary_table(views, meta)
+        write("summary", summary)
+        toc.append(("summary", "Summary", 2))
+        body.append("<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
+                    "problem size n, the instances compared (those every compared solver "
+                    "was given, of the set's), the solvers compared, and at each residual "
+                    "level the solver with the lowest shifted geometric mean of the E-MVPs "
+                    "to first reach it (a run that never reached it counts at the penalty): "
+                    "its median E-MVPs over its runs that reached the level, and how many "
+                    "did.</p>" + _table_html(summary, text=True))
+    toc.append(("run", "Run", 2))
+    body.append(_meta_section(meta, res))
+    if not views:
+        return
+    toc.append(("offline", "Offline comparison, per problem set", 2))
+    shift = offline.ranking.SHIFT["emvps"]
+    body.append("<h2 id='offline'>Offline comparison, per problem set</h2><p class='note'>"
+                + offline.CONVENTIONS.format(shift_e=shift)
+                + f" The baseline of the ratios is {html.escape(baseline)}.</p>")
+    for k, view in enumerate(views):
+        say(f"problem set {k + 1}/{len(views)}: {view.problem}")
+        toc.append((_anchor(k), view.problem, 3))
+        body.append(offline.set_section(view, baseline=baseline, meta=meta, colors=colors,
+                                        anchor=_anchor(k), fig=fig, table_html=_table_html,
+                                        write=write))
 
 
 def _toc_html(toc: list[tuple[str, str, int]]) -> str:
