@@ -153,8 +153,11 @@ def boxplot_svg(data: pd.DataFrame, by: str, value: str, title: str, ylabel: str
         for box, color in zip(bp["boxes"], cols):
             box.set_facecolor(color)
         ax.set_xlim(0.4, len(series) + 0.6)
-        if log:
-            ax.set_yscale("symlog", linthresh=1.0) if zeros else ax.set_yscale("log")
+        if log and zeros:
+            ax.set_yscale("symlog", linthresh=1.0)
+            ylabel = ylabel.replace("(log scale)", "(log scale, linear below 1)")
+        elif log:
+            ax.set_yscale("log")
     else:
         ax.text(0.5, 0.5, "no solved run", ha="center", va="center", transform=ax.transAxes)
     ax.set_xticks(range(1, len(labels) + 1))
@@ -207,8 +210,11 @@ def grouped_boxplot_svg(data: pd.DataFrame, group: str, by: str, value: str, tit
                 box.set_label(str(s))
                 drawn.add(s)
     if drawn:
-        if log:
-            ax.set_yscale("symlog", linthresh=1.0) if zeros else ax.set_yscale("log")
+        if log and zeros:
+            ax.set_yscale("symlog", linthresh=1.0)
+            ylabel = ylabel.replace("(log scale)", "(log scale, linear below 1)")
+        elif log:
+            ax.set_yscale("log")
         _legend_right(ax)
     else:
         ax.text(0.5, 0.5, "no value to draw", ha="center", va="center",
