@@ -63,8 +63,11 @@ def pooled_rows():
 
 def test_no_view_pools_sets_or_instances(tmp_path, pooled_rows):
     folder = _store(tmp_path, pooled_rows)
-    render_report(folder)
     tdir = folder / "tables"
+    tdir.mkdir()
+    (tdir / "work_precision.csv").write_text("solver\nstale pooled table\n")
+    render_report(folder)
+    assert not (tdir / "work_precision.csv").exists()       # an earlier render's pooled table
     # the work-precision table is per set, every solver over the same runs
     per_set = sorted(tdir.glob("work_precision_set*.csv"))
     assert len(per_set) == 2

@@ -200,7 +200,8 @@ def fidelity_section(paths: Iterable, cache_dir=None,
             parts.append(f'<div class="fig">{plots.prefix_ids(cottle, f"fid{k}b_")}</div>')
     if not parts:
         return ""
-    intro = ("<h2 id='fidelity'>Fidelity study of the stored sets</h2><p class='note'>Per low fidelity: "
+    intro = ("<h2 id='fidelity'>Fidelity study of the stored sets</h2>"
+             "<p class='note'>Per low fidelity: "
              "log10 of the largest ||A_low - A||_inf over the instances (induced infinity "
              "norm), the median number of low-fidelity MVPs per high-fidelity MVP "
              "(1 / cost_ratio, as measured when the set was generated), and the share of "

@@ -105,7 +105,8 @@ def fidelity_map_section(results: pd.DataFrame, *, colors: dict | None = None
         return "", table
     body = table.to_html(index=False, escape=True, na_rep="-", border=0,
                          float_format=lambda v: f"{v:.3g}")
-    parts = ["<h2 id='fidelity-map'>Fidelity advantage</h2><p class='note'>Median high-fidelity MVPs and E-MVPs "
+    parts = ["<h2 id='fidelity-map'>Fidelity advantage</h2>"
+             "<p class='note'>Median high-fidelity MVPs and E-MVPs "
              "of the multi-fidelity solvers (verified-solved runs) against the relative error "
              "of their low fidelity: synthetic A + E (random or shaped like the set's own low "
              "error) and the set's real lows (stars). Dotted: the best single-fidelity "

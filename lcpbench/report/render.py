@@ -97,6 +97,17 @@ def _write_table(out: Path, name: str, df: pd.DataFrame) -> None:
     atomic_write(out / f"{name}.md", markdown_table(df))
 
 
+#: Tables written per problem set (or, by earlier versions, pooled over every set): the
+#: ones of a previous render are removed first, so no stale or pooled table stays behind.
+_PER_SET_TABLES = ("work_precision*.csv", "work_precision*.md", "profile_*.csv", "profile_*.md")
+
+
+def _drop_stale_tables(tdir: Path) -> None:
+    for pattern in _PER_SET_TABLES:
+        for old in tdir.glob(pattern):
+            old.unlink()
+
+
 def _anchor(k: int) -> str:
     return f"set{k + 1}"
 
@@ -143,6 +154,7 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     def write(name: str, df: pd.DataFrame) -> None:
         _write_table(tdir, name, df)
 
+    _drop_stale_tables(tdir)
     colors = solver_colors(res["solver"].astype(str).unique()) if len(res) else {}
     say("offline tables and figures, per problem set")
     _write_table(tdir, "offline", tables.offline_table(res))
