@@ -186,7 +186,7 @@ def references_section(results: pd.DataFrame, table_html: Callable[..., str],
             "solvers (through qpsolvers, on the dense matrix) define the ground truth: a "
             "consensus of those that agree. They count no MVPs, so they are in no E-MVP "
             "ranking and in no figure. Per set: the runs solved (verified), the median wall "
-            "seconds, the median verified residual ||min(x, Ax+b)|| (needs no reference), on "
-            "how many instances the solver was part of the consensus, and the median error "
+            "seconds, the median verified residual ||min(x, Ax+b)|| (needs no reference), what "
+            "the set's reference is made of (most often), on how many instances the solver was part of the consensus, and the median error "
             "of w against a reference that did not include it (the count in parentheses; - "
             "where it was in every consensus).</p>" + table_html(refs, text=False))

@@ -188,8 +188,9 @@ def references_table(results: pd.DataFrame) -> pd.DataFrame:
 
     Columns: ``problem``, ``solver``, ``solved`` (verified, ``k/m``), ``median s``,
     ``median residual`` (the framework's verified ``||min(x, Ax+b)||``, which needs no
-    reference), ``in consensus`` (on how many instances the solver was one of the
-    consensus that defines the reference) and ``error of w vs the others`` (median
+    reference), ``reference made of`` (the most frequent source of the set's reference:
+    the consensus members, or a stored or planted solution), ``in consensus`` (on how
+    many instances the solver was one of the consensus that defines the reference) and ``error of w vs the others`` (median
     relative error of ``w`` on the instances whose reference did not include this
     solver; ``-`` when it was in every consensus: there its error against a reference
     made of itself says nothing).
@@ -210,6 +211,8 @@ def references_table(results: pd.DataFrame) -> pd.DataFrame:
                      "solved": f"{int(truthy(g['solved']).sum())}/{len(g)}",
                      "median s": f"{pd.to_numeric(g['time_s'], errors='coerce').median():.3g}",
                      "median residual": f"{res.median():.2e}" if len(res) else "-",
+                     "reference made of": (members[members != ""].mode().iloc[0]
+                                           if (members != "").any() else "-"),
                      "in consensus": f"{int(inside.sum())}/{len(g)}",
                      "error of w vs the others": (f"{outside.median():.2e} ({len(outside)})"
                                                   if len(outside) else "-")})
