@@ -80,7 +80,10 @@ def common_ground(part: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
     """
     if part.empty:
         return part, {"instances": 0, "total": 0, "solvers": [], "left_out": {}}
-    keys = list(zip(part["instance"].astype(str), part["repeat"].fillna(0).astype(int)))
+    if "repeat" not in part:
+        part = part.assign(repeat=0)
+    keys = list(zip(part["instance"].astype(str),
+                    pd.to_numeric(part["repeat"], errors="coerce").fillna(0).astype(int)))
     part = part.assign(_key=keys)
     per = {str(s): set(g["_key"]) for s, g in part.groupby("solver", sort=True)}
     common = set.intersection(*per.values())
@@ -89,6 +92,15 @@ def common_ground(part: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
             "total": part["instance"].astype(str).nunique(), "solvers": sorted(per),
             "left_out": {s: len(v - common) for s, v in per.items() if v - common}}
     return cut.drop(columns="_key"), info
+
+
+def _by_instance(g: pd.DataFrame) -> pd.Series:
+    """E-MVPs of the solved runs of ``g`` indexed by (instance, repeat)."""
+    ok = g[truthy(g["solved"])]
+    rep = pd.to_numeric(ok["repeat"], errors="coerce").fillna(0).astype(int) \
+        if "repeat" in ok else pd.Series(0, index=ok.index)
+    index = pd.MultiIndex.from_arrays([ok["instance"].astype(str), rep])
+    return pd.Series(ok["emvps"].astype(float).to_numpy(), index=index)
 
 
 def penalty(part: pd.DataFrame, metric: str, meta: dict | None = None) -> float:
@@ -132,9 +144,7 @@ def _stats(ok: pd.DataFrame, multi: bool) -> dict[str, str]:
 
 def _both_solved_ratio(g: pd.DataFrame, base: pd.DataFrame) -> str:
     """``median(solver) / median(baseline)`` over the instances both solved, with the count."""
-    mine = g[truthy(g["solved"])].set_index(["instance", "repeat"])["emvps"].astype(float)
-    theirs = base[truthy(base["solved"])].set_index(["instance", "repeat"])["emvps"] \
-        .astype(float)
+    mine, theirs = _by_instance(g), _by_instance(base)
     both = mine.index.intersection(theirs.index)
     if len(both) == 0:
         return f"- (0 of {len(g)} both solved)"
