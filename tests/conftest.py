@@ -31,3 +31,16 @@ def true_residual():
         return float(np.linalg.norm(np.minimum(x, lcp.dense() @ x + lcp.b)))
 
     return residual
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _user_cache_in_tmp(tmp_path_factory):
+    """The user cache (``XDG_CACHE_HOME``: the report's fidelity study) in a temporary folder.
+
+    No test writes to the real home; a test that checks the cache itself points
+    ``XDG_CACHE_HOME`` at its own ``tmp_path``.
+    """
+    patch = pytest.MonkeyPatch()
+    patch.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+    yield
+    patch.undo()

@@ -218,7 +218,7 @@ def test_report_of_a_stored_set_run_has_the_fidelity_section(stored_set, tmp_pat
     assert main(["report", str(out)]) == 0
     page = (out / "report.html").read_text()
     assert "Fidelity study of the stored sets" in page
-    assert "fid.h5 (2 selected instance(s))" in page
+    assert "(file fid.h5): 2 selected instance(s)" in page
     assert "share_err_below_c" in page and "p4e8" in page
     import pandas as pd
 

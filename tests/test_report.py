@@ -43,21 +43,25 @@ def results() -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def test_paper_table_has_solver_rows_statistics_and_ratio(results):
+def test_paper_table_is_on_common_ground_with_counts(results):
     per_set = tables.paper_tables(results, baseline="bb-pgd")
     assert list(per_set) == ["other", "set"]
     t = per_set["set"].set_index("solver")
     assert list(t.index) == ["bb-pgd", "mono-pqn", "bi-pqn:low=p4"]    # no reference solver
-    assert list(t.columns) == ["solved", "min", "median", "mean", "max", "median / bb-pgd"]
-    assert t.loc["bb-pgd", ["min", "median", "mean", "max"]].tolist() == ["10", "13", "14", "20"]
-    assert t.loc["mono-pqn", "median / bb-pgd"] == "0.50"
-    # high-fidelity MVPs in parentheses for the multi-fidelity solver, over its 2 runs
+    assert list(t.columns) == ["solved", "success", "min", "median", "mean", "max",
+                               "median / bb-pgd", "shifted GM", "shifted GM / best"]
+    # bi-pqn was given i0 and i1 only: every solver is compared over those two
+    assert per_set["set"].attrs["instances"] == 2 and per_set["set"].attrs["total"] == 4
+    assert t.loc["bb-pgd", ["min", "median", "mean", "max"]].tolist() == ["10", "11", "11", "12"]
+    assert t.loc["mono-pqn", "median / bb-pgd"] == "0.50 (2 of 2 both solved)"
+    # high-fidelity MVPs in parentheses for the multi-fidelity solver
     assert t.loc["bi-pqn:low=p4", "min"] == "2.5 (2)"
     assert t.loc["bi-pqn:low=p4", "mean"] == "3 (2.5)"
     assert t.loc["bi-pqn:low=p4", "solved"] == "2/2"
-    assert t.loc["bi-pqn:low=p4", "median / bb-pgd"] == f"{3.0 / 13:.2f}"
+    assert t.loc["bi-pqn:low=p4", "median / bb-pgd"] == f"{3.0 / 11:.2f} (2 of 2 both solved)"
     other = per_set["other"].set_index("solver")
-    assert other.loc["bb-pgd", "median"] == "-" and other.loc["mono-pqn", "median / bb-pgd"] == "-"
+    assert other.loc["bb-pgd", "median"] == "-" and other.loc["bb-pgd", "success"] == "0 %"
+    assert other.loc["mono-pqn", "median / bb-pgd"] == "- (0 of 1 both solved)"
 
 
 def test_profile_leaves_out_runs_that_were_not_made(results):
@@ -106,29 +110,43 @@ def small_store(tmp_path_factory):
 def test_report_sections_labels_and_progress(small_store):
     lines = []
     html = render_report(small_store, progress=lines.append).read_text()
-    assert html.count("<h3>fathi:sizes=[4,8]</h3>") == 1
-    assert "<h3>set-lattice-bim-m3:instances=0-1</h3>" in html
+    assert html.count(">fathi:sizes=[4,8]</h3>") == 1
+    assert ">set-lattice-bim-m3:instances=0-1</h3>" in html
     assert "median / bb-pgd" in html
-    assert "Residual against E-MVPs: fathi" in html and "Residual against E-MVPs: lattice" in html
+    assert "Residual against E-MVPs: fathi:sizes=[4,8] (2 instances)" in html
+    assert "Residual against E-MVPs: set-lattice-bim-m3:instances=0-1 (2 instances)" in html
     assert not re.search(r"\b(lemma|eq\.|algorithm) [a-z]+[A-Z]\w*", html), "LaTeX label"
     assert any("fidelity study of lattice-bim-m3" in line for line in lines)
+    # one name per set: the fidelity study names the set as the offline section does
+    assert "set-lattice-bim-m3:instances=0-1 (file lattice-bim-m3.h5)" in html
     assert lines[-1].startswith("wrote ")
     for svg in re.findall(r"<svg[^>]*>", html):          # fixed-size figures, none squeezed
         width = float(re.search(r'width="([\d.]+)pt"', svg).group(1))
         assert width <= 9 * 72 + 1
 
 
-def test_rerender_reuses_the_cached_fidelity_study(small_store, monkeypatch):
-    render_report(small_store)
-    cached = sorted((small_store / "cache").glob("fidelity-lattice-bim-m3-*.csv"))
+def test_fidelity_study_is_cached_once_per_set_in_the_user_cache(small_store, tmp_path,
+                                                                 monkeypatch):
+    import shutil
+
+    import lcpbench.workflows.fidelity as fid
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    lines = []
+    render_report(small_store, progress=lines.append)
+    cached = sorted((tmp_path / "xdg" / "lcpbench" / "fidelity").glob("lattice-bim-m3-*.csv"))
     assert len(cached) == 1
+    assert any("c(A) of instance 2/2" in line for line in lines)      # progress per instance
+    assert not (small_store / "cache").exists()                       # not per output folder
     first = (small_store / "report.html").read_text()
 
     def no_recompute(*args, **kwargs):
         raise AssertionError("c(A) recomputed although the study is cached")
 
-    import lcpbench.workflows.fidelity as fid
     monkeypatch.setattr(fid, "cottle_c", no_recompute)
+    other = tmp_path / "other-folder"                  # a new output folder, same stored set
+    shutil.copytree(small_store, other)
+    render_report(other)
     render_report(small_store)
     assert (small_store / "report.html").read_text() == first
 

@@ -58,9 +58,8 @@ def test_report_is_readable_at_1400_px(report, tmp_path):
         figures = driver.execute_script(
             "return Array.from(document.querySelectorAll('.fig svg')).map("
             "s => {const r = s.getBoundingClientRect(); return [r.width, r.height];});")
-        # box plots per set (3), convergence per family (3), work-precision (2),
-        # profiles (2), fidelity heatmaps of the stored set (2)
-        assert len(figures) >= 12, figures
+        # per set (3): box plot, convergence, work-precision and profiles; fidelity (2)
+        assert len(figures) >= 11, figures
         small = [(w, h) for w, h in figures if h < 250 or w < 400]
         assert small == [], f"figures rendered too small (width, height px): {small}"
         overflowing = driver.execute_script(
@@ -75,6 +74,7 @@ def test_report_is_readable_at_1400_px(report, tmp_path):
         labels = driver.execute_script("return document.body.innerText")
         for latex in ("cottleLemma", "pqnSubproblem", "stepSize", "eq. "):
             assert latex not in labels, latex
+        _check_views_colours_and_legends(driver)
         shot = tmp_path / "report.png"
         driver.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000
@@ -82,3 +82,59 @@ def test_report_is_readable_at_1400_px(report, tmp_path):
         assert errors == []
     finally:
         driver.quit()
+
+
+#: JavaScript: per figure, each legend label with the colour drawn just before it.
+_LEGENDS = """
+return Array.from(document.querySelectorAll('.fig svg')).map(svg => {
+  const scale = svg.getBoundingClientRect().width / svg.viewBox.baseVal.width;
+  const out = [];
+  svg.querySelectorAll('g[id*=legend]').forEach(leg => {
+    let colour = null;
+    leg.querySelectorAll('path, text').forEach(el => {
+      if (el.tagName === 'path') {
+        const st = getComputedStyle(el);
+        const c = st.stroke && st.stroke !== 'none' ? st.stroke : st.fill;
+        if (c && c !== 'none' && c !== 'rgb(255, 255, 255)') colour = c;
+      } else {
+        out.push([el.textContent, colour, parseFloat(getComputedStyle(el).fontSize) * scale]);
+      }
+    });
+  });
+  return out;
+});
+"""
+
+
+def _check_views_colours_and_legends(driver):
+    """Every view states its instance count; one colour per solver; legends >= 10 px;
+    the reference QP solver (proxqp) only in its own table."""
+    views = driver.execute_script(
+        "return Array.from(document.querySelectorAll('.view')).map(v => [v.dataset.set, "
+        "v.dataset.instances, v.querySelector('.caption').innerText, "
+        "v.querySelectorAll('svg').length, v.innerText]);")
+    assert len(views) >= 9, views
+    per_set = {}
+    for name, count, caption, _, text in views:
+        assert f"over {count} instances" in caption and name in caption, caption
+        per_set.setdefault(name, set()).add(count)
+        assert "proxqp" not in text, (name, caption)
+    assert all(len(c) == 1 for c in per_set.values()), per_set       # no view mixes sets
+    colours = {}
+    sizes = []
+    for legend in driver.execute_script(_LEGENDS):
+        for label, colour, px in legend:
+            sizes.append((label, px))
+            solver = label.split(" (")[0]
+            assert solver != "proxqp", "a reference solver in a figure legend"
+            if colour is not None and not solver.startswith("solver"):
+                colours.setdefault(solver, set()).add(colour)
+    assert sizes, "no legend text found"
+    small = [(label, round(px, 1)) for label, px in sizes if px < 10]
+    assert small == [], f"legend text under 10 px at 1400 px: {small}"
+    mixed = {s: c for s, c in colours.items() if len(c) > 1}
+    assert mixed == {}, f"a solver drawn in several colours: {mixed}"
+    refs = driver.execute_script(
+        "const r = document.getElementById('references');"
+        "return r ? r.nextElementSibling.nextElementSibling.innerText : '';")
+    assert "proxqp" in refs

@@ -72,8 +72,9 @@ def add_run_parser(sub) -> None:
 def add_report_parser(sub) -> None:
     p = sub.add_parser("report", help="render DIR/report.html from a run store",
                        description="Render DIR/report.html and DIR/tables/ from a run store. "
-                                   "The fidelity study of stored sets is cached in "
-                                   "DIR/cache/, so re-rendering takes seconds.")
+                                   "The fidelity study of stored sets is computed once per "
+                                   "set and cached in $XDG_CACHE_HOME/lcpbench (default "
+                                   "~/.cache/lcpbench), so re-rendering takes seconds.")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--baseline", default=BASELINE_SOLVER,
                    help="solver the offline ratios and online speedups are measured against")

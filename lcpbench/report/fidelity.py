@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.report import plots
-from lcpbench.workflows.fidelity import TABLE_COLUMNS, cached_fidelity_table
+from lcpbench.workflows.fidelity import TABLE_COLUMNS, cache_entry, cached_fidelity_table
 
 __all__ = ["GRID_MODELS", "cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
 
@@ -144,7 +144,8 @@ def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
 
 
 def fidelity_section(paths: Iterable, cache_dir=None,
-                     progress: Callable[[str], None] | None = None) -> str:
+                     progress: Callable[[str], None] | None = None,
+                     names: dict[str, str] | None = None) -> str:
     """HTML section of the report: per stored set, the table, heatmaps and Cottle figure.
 
     Parameters
@@ -153,9 +154,14 @@ def fidelity_section(paths: Iterable, cache_dir=None,
         Stored-set paths, or ``(path, instance ids or None)`` pairs as returned by
         :func:`lcpbench.workflows.fidelity.stored_set_specs`.
     cache_dir : str or Path, optional
-        Where the tables are cached (a run store's ``cache/``); None recomputes.
+        Where the tables are cached; default the user cache directory
+        (:func:`lcpbench.workflows.fidelity.user_cache_dir`).
     progress : callable, optional
-        Called with a line of text before each set whose table is not cached yet.
+        Called with a line of text before each set and after each instance's ``c(A)``
+        while a table is computed (nothing more when it is cached).
+    names : dict, optional
+        The problem-set label of each file (resolved path -> label), so the section
+        names a set as the rest of the report does, with its file name beside it.
 
     Returns
     -------
@@ -168,19 +174,25 @@ def fidelity_section(paths: Iterable, cache_dir=None,
     for k, item in enumerate(paths):
         path, ids = (item if isinstance(item, tuple) else (item, None))
         path = Path(path)
+        label = (names or {}).get(str(path.resolve()), path.name)
+        title = label if label == path.name else f"{label} (file {path.name})"
         try:
+            cached = cache_entry(path, ids, cache_dir).exists()
             if progress is not None:
-                progress(f"fidelity study of {path.name} (c(A) of each instance; cached "
-                         "after the first time)")
-            table = cached_fidelity_table(path, ids, cache_dir)
+                progress(f"fidelity study of {path.name}: " + (
+                    "cached" if cached else "c(A) of each instance, computed once and "
+                    f"cached in {cache_entry(path, ids, cache_dir).parent}"))
+            say = (lambda text, _n=path.name: progress(f"fidelity study of {_n}: {text}")) \
+                if progress is not None else None
+            table = cached_fidelity_table(path, ids, cache_dir, progress=say)
         except (StoredSetError, OSError, ValueError) as exc:
-            parts.append(f"<h3>{html.escape(path.name)}</h3><p class='note'>fidelity study "
+            parts.append(f"<h3>{html.escape(title)}</h3><p class='note'>fidelity study "
                          f"skipped: {html.escape(str(exc))}</p>")
             continue
         if table.empty:
             continue
         used = f"{len(ids)} selected instance(s)" if ids is not None else "all instances"
-        parts.append(f"<h3>{html.escape(path.name)} ({used})</h3>")
+        parts.append(f"<h3>{html.escape(title)}: {used}</h3>")
         parts.append(_html_table(table))
         parts.append(heatmaps(table, id_prefix=f"fid{k}a_"))
         cottle = cottle_heatmap_svg(table)
@@ -188,7 +200,8 @@ def fidelity_section(paths: Iterable, cache_dir=None,
             parts.append(f'<div class="fig">{plots.prefix_ids(cottle, f"fid{k}b_")}</div>')
     if not parts:
         return ""
-    intro = ("<h2>Fidelity study of the stored sets</h2><p class='note'>Per low fidelity: "
+    intro = ("<h2 id='fidelity'>Fidelity study of the stored sets</h2>"
+             "<p class='note'>Per low fidelity: "
              "log10 of the largest ||A_low - A||_inf over the instances (induced infinity "
              "norm), the median number of low-fidelity MVPs per high-fidelity MVP "
              "(1 / cost_ratio, as measured when the set was generated), and the share of "

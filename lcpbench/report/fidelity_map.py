@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.report import plots, tables
+from lcpbench.report.colors import solver_colors
 
 __all__ = ["fidelity_map_table", "fidelity_map_section"]
 
@@ -65,18 +66,16 @@ def fidelity_map_table(results: pd.DataFrame) -> pd.DataFrame:
                            ascending=[True, True, True, False]).reset_index(drop=True)
 
 
-def _figure_svg(table: pd.DataFrame, column: str, ylabel: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.0, 3.6))
+def _figure_svg(table: pd.DataFrame, column: str, ylabel: str,
+                colors: dict | None = None) -> str:
+    fig, ax = plots.figure(plots.WIDTH, 3.8)
     markers = {"random": "o-", "like": "s-"}
+    palette = solver_colors(table["solver"].astype(str).unique())
+    palette.update(colors or {})
     for (prob, solver, low), g in table.groupby(["problem", "solver", "low"]):
         style = markers.get(low, "*")
         ax.plot(g["rel_error"], g[column], style, ms=8 if style == "*" else 4,
-                label=f"{prob} {solver} {low}")
+                color=palette.get(str(solver)), label=f"{prob} {solver} {low}")
     if column == "emvps" and table["best_single_fidelity"].notna().any():
         for prob, g in table.groupby("problem"):
             ax.axhline(float(g["best_single_fidelity"].iloc[0]), ls=":", color="grey", lw=1)
@@ -84,27 +83,35 @@ def _figure_svg(table: pd.DataFrame, column: str, ylabel: str) -> str:
     ax.invert_xaxis()
     ax.set_xlabel("relative error of the low fidelity ||A_low - A|| / ||A||")
     ax.set_ylabel(ylabel)
-    ax.legend(fontsize=6, ncol=2)
+    ax.legend(fontsize=plots.LEGEND_PT, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              borderaxespad=0.0, frameon=False)
     return plots.svg_of(fig)
 
 
-def _figure(table: pd.DataFrame, column: str, ylabel: str, key: str) -> str:
-    return f'<div class="fig">{plots.prefix_ids(_figure_svg(table, column, ylabel), key)}</div>'
+def _figure(table: pd.DataFrame, column: str, ylabel: str, key: str,
+            colors: dict | None) -> str:
+    svg = _figure_svg(table, column, ylabel, colors)
+    return f'<div class="fig">{plots.prefix_ids(svg, key)}</div>'
 
 
-def fidelity_map_section(results: pd.DataFrame) -> tuple[str, pd.DataFrame]:
-    """HTML of the section and its table (``("", empty)`` when the store has no such runs)."""
+def fidelity_map_section(results: pd.DataFrame, *, colors: dict | None = None
+                         ) -> tuple[str, pd.DataFrame]:
+    """HTML of the section and its table (``("", empty)`` when the store has no such runs).
+
+    ``colors`` is the report's solver-to-colour map (the solvers' own colours by default).
+    """
     table = fidelity_map_table(results)
     if table.empty:
         return "", table
     body = table.to_html(index=False, escape=True, na_rep="-", border=0,
                          float_format=lambda v: f"{v:.3g}")
-    parts = ["<h2>Fidelity advantage</h2><p class='note'>Median high-fidelity MVPs and E-MVPs "
+    parts = ["<h2 id='fidelity-map'>Fidelity advantage</h2>"
+             "<p class='note'>Median high-fidelity MVPs and E-MVPs "
              "of the multi-fidelity solvers (verified-solved runs) against the relative error "
              "of their low fidelity: synthetic A + E (random or shaped like the set's own low "
              "error) and the set's real lows (stars). Dotted: the best single-fidelity "
              "solver's median E-MVPs on the same problem. The exact-subproblem oracle floor: "
              f"{html.escape('python benchmarks/fidelity_map.py')}.</p>", body,
-             _figure(table, "high_mvps", "median high-fidelity MVPs", "fm1_"),
-             _figure(table, "emvps", "median E-MVPs", "fm2_")]
+             _figure(table, "high_mvps", "median high-fidelity MVPs", "fm1_", colors),
+             _figure(table, "emvps", "median E-MVPs", "fm2_", colors)]
     return "\n".join(parts), table

@@ -2,8 +2,12 @@
 
 No network and no CDN: figures are inline SVG, CSS is inline. The tables are
 also written beside the HTML as CSV and Markdown (``DIR/tables/``), sorted and
-formatted deterministically so two reports diff cleanly. The fidelity study of
-stored sets is cached in ``DIR/cache/``, so re-rendering takes seconds.
+formatted deterministically so two reports diff cleanly; their Markdown is
+escaped (no raw HTML). The page opens with a table of contents and a summary per
+problem set; every ranking is per problem set on common ground (see
+:mod:`lcpbench.report.offline`). The fidelity study of stored sets is cached in the
+user cache directory (:func:`lcpbench.workflows.fidelity.user_cache_dir`), keyed by
+the set's content, so it is computed once per set, not once per output folder.
 """
 
 from __future__ import annotations
@@ -18,12 +22,13 @@ from pathlib import Path
 import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER
-from lcpbench.report import fidelity_map, plots, tables
+from lcpbench.report import fidelity_map, offline, plots, tables
+from lcpbench.report.colors import solver_colors
 from lcpbench.report.fidelity import fidelity_section
 from lcpbench.run.store import RunStore, atomic_write
-from lcpbench.workflows.fidelity import stored_set_specs
+from lcpbench.workflows.fidelity import stored_set_specs, user_cache_dir
 
-__all__ = ["render_report", "stderr_progress"]
+__all__ = ["render_report", "stderr_progress", "markdown_table"]
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
@@ -37,6 +42,8 @@ th{background:#f3f3f3}td:first-child{text-align:left}
 td.text{text-align:left}
 .fig{margin:1em 0;overflow:hidden}.fig svg{max-width:100%;height:auto}
 .note{color:#555;font-size:.9em}code{background:#f6f6f6;padding:0 .2em}
+.caption{font-weight:600;margin:1.2em 0 .2em}
+nav#contents ul{columns:2;list-style:none;padding-left:0}nav#contents li.sub{padding-left:1.5em}
 """
 
 
@@ -59,12 +66,50 @@ def _table_html(df: pd.DataFrame, text: bool = False) -> str:
                       classes="text" if text else None, float_format=lambda v: f"{v:.3g}")
 
 
+def _md_cell(value) -> str:
+    """A Markdown table cell that renders as the text it holds, never as HTML or markup.
+
+    ``<``, ``>``, ``&`` and quotes become HTML entities (a ``<script>`` in a plugin's
+    message stays text), ``|`` is escaped so it cannot split the cell, and line breaks
+    become spaces so they cannot end the row.
+    """
+    text = html.escape(str(value), quote=True).replace("|", "\\|")
+    return " ".join(text.splitlines())
+
+
+def markdown_table(df: pd.DataFrame) -> str:
+    """``df`` as a Markdown table with every header and cell escaped (:func:`_md_cell`)."""
+    if df is None or df.empty:
+        return "(no rows)\n"
+    shown = df.copy()
+    for col in shown.columns:
+        if not pd.api.types.is_numeric_dtype(shown[col]):
+            shown[col] = shown[col].map(lambda v: v if pd.isna(v) else _md_cell(v))
+    shown.columns = [_md_cell(c) for c in shown.columns]
+    return shown.to_markdown(index=False) + "\n"
+
+
 def _write_table(out: Path, name: str, df: pd.DataFrame) -> None:
     out.mkdir(exist_ok=True)
     if df is None or df.empty:
         df = pd.DataFrame()
     atomic_write(out / f"{name}.csv", df.to_csv(index=False, float_format="%.6g"))
-    atomic_write(out / f"{name}.md", df.to_markdown(index=False) if not df.empty else "(no rows)\n")
+    atomic_write(out / f"{name}.md", markdown_table(df))
+
+
+#: Tables written per problem set (or, by earlier versions, pooled over every set): the
+#: ones of a previous render are removed first, so no stale or pooled table stays behind.
+_PER_SET_TABLES = ("work_precision*.csv", "work_precision*.md", "profile_*.csv", "profile_*.md")
+
+
+def _drop_stale_tables(tdir: Path) -> None:
+    for pattern in _PER_SET_TABLES:
+        for old in tdir.glob(pattern):
+            old.unlink()
+
+
+def _anchor(k: int) -> str:
+    return f"set{k + 1}"
 
 
 def render_report(path, baseline: str = BASELINE_SOLVER,
@@ -100,116 +145,121 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     hist = store.history()
     meta = store.read_meta() or {}
     tdir = folder / "tables"
-    parts: list[str] = []
     fig_no = [0]
 
     def fig(svg: str) -> str:
         fig_no[0] += 1
         return f'<div class="fig">{plots.prefix_ids(svg, f"f{fig_no[0]}_")}</div>'
 
-    parts.append("<h1>lcpbench report</h1>")
-    parts.append(_meta_section(meta, res))
+    def write(name: str, df: pd.DataFrame) -> None:
+        _write_table(tdir, name, df)
 
-    say("offline tables and box plots")
+    _drop_stale_tables(tdir)
+    colors = solver_colors(res["solver"].astype(str).unique()) if len(res) else {}
+    say("offline tables and figures, per problem set")
     _write_table(tdir, "offline", tables.offline_table(res))
-    parts.append(_offline_section(res, baseline, fig))
-
-    say("convergence curves")
-    parts.append(_convergence_section(res, hist, fig))
-
-    say("work-precision and performance profiles")
-    wp = tables.work_precision(res, hist)
-    _write_table(tdir, "work_precision", wp)
-    parts.append("<h2>Speed against error</h2><p class='note'>Per residual level: the median "
-                 "E-MVPs and seconds to first reach it, and how many of the solver's runs "
-                 "reached it (out of the runs it was given); last column: the median final "
-                 "error of w against the reference.</p>")
-    parts.append(_table_html(tables.work_precision_display(wp)))
-    if not wp.empty:
-        mvp_only = set(res.loc[res["mvp_only"].astype(str).str.lower().eq("true"), "solver"])
-        parts.append(fig(plots.work_precision_svg(wp[wp["solver"].isin(mvp_only)], "emvps",
-                                                  "median E-MVPs (log scale)",
-                                                  "Work-precision (E-MVPs, MVP-only solvers)")))
-        parts.append(fig(plots.work_precision_svg(wp, "s", "median seconds (log scale)",
-                                                  "Work-precision (seconds)")))
-
-    parts.append("<h2>Performance profiles</h2><p class='note'>Dolan-More: the share of the "
-                 "problems a solver was run on that it solves within a factor tau of the best "
-                 "solver; a run that did not meet the tolerance counts as never. A solver "
-                 "that was not run on every problem (a multi-fidelity solver on instances "
-                 "without a low fidelity) says in the legend on how many it was run; the "
-                 "problems it was not run on are not counted, neither as solved nor as "
-                 "failed.</p>")
-    for metric, label in (("emvps", "E-MVPs (MVP-only solvers)"), ("time_s", "seconds")):
-        prof = tables.performance_profile(res, metric)
-        _write_table(tdir, f"profile_{metric}", prof)
-        if not prof.empty:
-            parts.append(fig(plots.profile_svg(prof, f"Performance profile: {label}")))
-
+    toc: list[tuple[str, str, int]] = []
+    body: list[str] = []
+    _offline_parts(res, hist, meta, toc, body, baseline=baseline, colors=colors, fig=fig,
+                   write=write, say=say)
+    refs = offline.references_section(res, _table_html, write)
+    if refs:
+        toc.append(("references", "Reference QP solvers", 2))
+        body.append(refs)
     fails = tables.failures_table(res)
-    _write_table(tdir, "failures", fails)
-    parts.append(f"<h2>Runs not solved ({len(fails)})</h2><p class='note'>Every run whose "
-                 "verified residual missed the tolerance, with the solver's status and "
-                 "message.</p>")
-    parts.append(_table_html(fails, text=True))
-
-    online = tables.online_table(res, baseline)
-    if not online.empty:
+    write("failures", fails)
+    toc.append(("failures", f"Runs not solved ({len(fails)})", 2))
+    body.append(f"<h2 id='failures'>Runs not solved ({len(fails)})</h2><p class='note'>Every "
+                "run whose verified residual missed the tolerance, with the solver's status "
+                "and message.</p>" + _table_html(fails, text=True))
+    if len(tables.online_runs(res)):
         say("online table")
         paper = tables.online_paper_table(res, baseline)
-        _write_table(tdir, "online_paper", paper)
-        _write_table(tdir, "online", online)
-        parts.append(_online_section(res, paper, online, baseline, fig))
-
-    fmap_html, fmap = fidelity_map.fidelity_map_section(res)
+        write("online_paper", paper)
+        write("online", tables.online_table(res, baseline))
+        write("online_left_out", tables.online_left_out(res))
+        toc.append(("online", "Online simulations", 2))
+        body.append(_online_section(res, paper, baseline, fig, colors))
+    fmap_html, fmap = fidelity_map.fidelity_map_section(res, colors=colors)
     if fmap_html:
-        _write_table(tdir, "fidelity_map", fmap)
-        parts.append(fmap_html)
-
+        write("fidelity_map", fmap)
+        toc.append(("fidelity-map", "Fidelity advantage", 2))
+        body.append(fmap_html)
     stored_sets = stored_set_specs(res)
     if stored_sets:
-        parts.append(fidelity_section(stored_sets, cache_dir=folder / "cache", progress=say))
-
+        fid = fidelity_section(stored_sets, cache_dir=user_cache_dir(), progress=say,
+                               names=_set_names(res))
+        if fid:
+            toc.append(("fidelity", "Fidelity study of the stored sets", 2))
+            body.append(fid)
     page = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             "<title>lcpbench report</title><style>" + _CSS + "</style></head><body>"
-            + "\n".join(p for p in parts if p) + "</body></html>\n")
+            "<h1>lcpbench report</h1>" + _toc_html(toc)
+            + "\n".join(p for p in body if p) + "</body></html>\n")
     out = folder / "report.html"
     atomic_write(out, page)
     say(f"wrote {out}")
     return out
 
 
-def _offline_section(res: pd.DataFrame, baseline: str, fig: Callable[[str], str]) -> str:
-    """Per problem set: the paper-shaped table and a box plot of E-MVPs per solver."""
-    per_set = tables.paper_tables(res, baseline)
-    if not per_set:
-        return ""
-    off = tables.offline_runs(res)
-    off = off[tables.solved_mask(off) & off["mvp_only"].astype(str).str.lower().eq("true")]
-    parts = ["<h2>Offline comparison</h2><p class='note'>One table per problem set, as the "
-             "method paper's: E-MVPs (effective matrix-vector products) over the runs whose "
-             "verified residual met the tolerance, min / median / mean / max; for "
-             "multi-fidelity solvers the high-fidelity MVPs are in parentheses. "
-             f"<i>solved</i> counts the runs the solver was given; the last column is the "
-             f"median E-MVPs divided by {html.escape(baseline)}'s. Reference QP solvers work "
-             "on the dense matrix and are left out.</p>"]
-    for problem, table in per_set.items():
-        parts.append(f"<h3>{html.escape(problem)}</h3>")
-        parts.append(_table_html(table))
-        part = off[off["problem"] == problem]
-        if len(part) and part["emvps"].astype(float).gt(0).any():
-            parts.append(fig(plots.boxplot_svg(part, "solver", "emvps",
-                                               f"E-MVPs of the solved runs: {problem}",
-                                               "E-MVPs (log scale)",
-                                               order=list(table["solver"]))))
-    return "\n".join(parts)
+def _offline_parts(res: pd.DataFrame, hist: pd.DataFrame, meta: dict, toc: list, body: list,
+                   *, baseline: str, colors: dict, fig: Callable[[str], str],
+                   write: Callable[[str, pd.DataFrame], None],
+                   say: Callable[[str], None]) -> None:
+    """Append the summary, the run's metadata and one section per problem set to ``body``."""
+    views = offline.set_views(res, hist)
+    if views:
+        summary = offline.summary_table(views, meta)
+        write("summary", summary)
+        toc.append(("summary", "Summary", 2))
+        body.append("<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
+                    "problem size n, the instances compared (those every compared solver "
+                    "was given, of the set's), the solvers compared, and at each residual "
+                    "level the solver with the lowest shifted geometric mean of the E-MVPs "
+                    "to first reach it (a run that never reached it counts at the penalty): "
+                    "its median E-MVPs over its runs that reached the level, and how many "
+                    "did.</p>" + _table_html(summary, text=True))
+    toc.append(("run", "Run", 2))
+    body.append(_meta_section(meta, res))
+    if not views:
+        return
+    toc.append(("offline", "Offline comparison, per problem set", 2))
+    shift = offline.ranking.SHIFT["emvps"]
+    body.append("<h2 id='offline'>Offline comparison, per problem set</h2><p class='note'>"
+                + offline.CONVENTIONS.format(shift_e=shift)
+                + f" The baseline of the ratios is {html.escape(baseline)}.</p>")
+    for k, view in enumerate(views):
+        say(f"problem set {k + 1}/{len(views)}: {view.problem}")
+        toc.append((_anchor(k), view.problem, 3))
+        body.append(offline.set_section(view, baseline=baseline, meta=meta, colors=colors,
+                                        anchor=_anchor(k), fig=fig, table_html=_table_html,
+                                        write=write))
 
 
-def _online_section(res: pd.DataFrame, paper: pd.DataFrame, detail: pd.DataFrame,
-                    baseline: str, fig: Callable[[str], str]) -> str:
-    """The paper-shaped online table, E-MVP box plots per lattice size, then the detail."""
+def _toc_html(toc: list[tuple[str, str, int]]) -> str:
+    items = []
+    for anchor, title, level in toc:
+        cls = " class='sub'" if level > 2 else ""
+        items.append(f"<li{cls}><a href='#{anchor}'>{html.escape(title)}</a></li>")
+    return f"<nav id='contents'><h2>Contents</h2><ul>{''.join(items)}</ul></nav>"
+
+
+def _set_names(res: pd.DataFrame) -> dict[str, str]:
+    """The problem-set label of each stored-set file the runs used (resolved path -> label)."""
+    names: dict[str, str] = {}
+    if res.empty or "problem" not in res:
+        return names
+    for problem, part in res.groupby("problem", sort=True):
+        for path, _ in stored_set_specs(part.head(1)):
+            names.setdefault(str(Path(path).resolve()), str(problem))
+    return names
+
+
+def _online_section(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
+                    fig: Callable[[str], str], colors: dict) -> str:
+    """The paper-shaped online table and its E-MVP box plot (same rows), then what was left out."""
     b = html.escape(baseline)
-    parts = ["<h2>Online simulations</h2>",
+    parts = ["<h2 id='online'>Online simulations</h2>",
              "<p class='note'>One row per scene, as the method paper's online table. "
              "<i>total</i> is the wall time of whole time steps (contact detection, mobility "
              "set-up, the non-collisional solve, the LCP solve and the position update, "
@@ -218,61 +268,56 @@ def _online_section(res: pd.DataFrame, paper: pd.DataFrame, detail: pd.DataFrame
              "wall time of the LCP solves alone. Times are "
              f"summed wall seconds on the machine that ran the simulations. {b} is the "
              f"baseline: its seconds are given, and every other solver's speedup is {b}'s "
-             "summed seconds divided by the solver's over the same steps (- where the "
-             "baseline did not run on the scene). Last columns: the median E-MVPs and "
-             "high-fidelity MVPs per step. "
-             + html.escape(_common_steps_note(paper)) + "</p>"]
-    parts.append(_table_html(tables.online_paper_display(paper)))
+             "summed seconds divided by the solver's over the same compared steps (- where "
+             "the baseline did not run on the scene or no step is left to compare). The "
+             "compared steps are those every solver of the scene finished, less the warm-up "
+             "steps (each simulation's first step, which pays the one-off compilation of the "
+             "numerical kernels) and the steps without contacts (nothing to solve); those "
+             "are listed apart below. Last columns: the median E-MVPs and high-fidelity MVPs "
+             "per compared step. " + html.escape(_common_steps_note(res)) + "</p>"]
+    if paper.empty:
+        parts.append("<p class='note'>No step is left to compare once the warm-up steps and "
+                     "the steps without contacts are set apart: no speedup is given.</p>")
+    else:
+        parts.append(_table_html(tables.online_paper_display(paper)))
     steps = tables.online_step_rows(res)
-    if len(steps) and pd.to_numeric(steps["emvps"], errors="coerce").gt(0).any():
+    if len(steps) and pd.to_numeric(steps["emvps"], errors="coerce").notna().any():
         groups = list(dict.fromkeys(steps["size"]))
         order = paper.attrs.get("solvers") or None
         parts.append(fig(plots.grouped_boxplot_svg(
-            steps, "size", "solver", "emvps", "E-MVPs per time step by lattice size",
-            "lattice size", "E-MVPs per step (log scale)", groups=groups, order=order)))
-        parts.append("<p class='note'>Each box: one solver's E-MVPs per step over the steps "
-                     "compared in the table above (steps with zero E-MVPs cannot be drawn on "
-                     "the log axis).</p>")
+            steps, "size", "solver", "emvps", "E-MVPs per compared time step by lattice size",
+            "lattice size", "E-MVPs per step (log scale)", groups=groups, order=order,
+            colors=colors)))
+        parts.append("<p class='note'>Each box: one solver's E-MVPs per step over the same "
+                     "compared steps as the table above (its medians are the black lines); "
+                     "with a zero among them the axis is linear below 1.</p>")
+    apart = tables.online_left_out(res)
+    if not apart.empty:
+        parts.append("<h3>Steps left out of the speedups</h3><p class='note'>Per scene and "
+                     "solver: the warm-up steps and the steps without contacts, with their "
+                     "summed seconds and E-MVPs.</p>")
+        parts.append(_table_html(apart, text=True))
     parts.append("<h3>Per scene and solver</h3><p class='note'>Every simulation over all the "
-                 "steps it finished (the step counts of one scene may differ here): summed "
-                 "total and collision-resolution seconds, median E-MVPs and MVPs per step, "
-                 "the largest overlap after a step and the steps solved (verified).</p>")
-    parts.append(_table_html(detail))
+                 "steps it finished, warm-up and contact-free steps included (the step counts "
+                 "of one scene may differ here): summed total and collision-resolution "
+                 "seconds, median E-MVPs and MVPs per step, the largest overlap after a step "
+                 "and the steps solved (verified).</p>")
+    parts.append(_table_html(tables.online_table(res, baseline)))
     return "\n".join(parts)
 
 
-def _common_steps_note(paper: pd.DataFrame) -> str:
+def _common_steps_note(res: pd.DataFrame) -> str:
     """Which steps each scene's solvers are compared over, and where a simulation was cut."""
-    stored = paper.attrs.get("stored", {})
     notes = []
-    for _, row in paper.iterrows():
-        counts = stored.get(row["scene"], {})
-        longer = {s: n for s, n in counts.items() if n > row["steps"]}
+    for scene, info in tables.online_common_steps(res).items():
+        common = len(info["steps"])
+        longer = {s: n for s, n in info["stored"].items() if n > common}
         if longer:
             more = ", ".join(f"{s} has {n}" for s, n in sorted(longer.items()))
-            notes.append(f"{row['scene']}: compared over the {row['steps']} steps every "
-                         f"solver finished ({more}; the extra steps are left out)")
-    head = "Solvers of one scene are compared over the steps they all finished (column steps)"
+            notes.append(f"{scene}: {common} steps every solver finished ({more}; the extra "
+                         "steps are left out)")
+    head = "Solvers of one scene are compared over the steps they all finished"
     return head + (": " + "; ".join(notes) + "." if notes else "; no simulation was cut.")
-
-
-def _convergence_section(res: pd.DataFrame, hist: pd.DataFrame,
-                         fig: Callable[[str], str]) -> str:
-    """One figure per problem family: median residual against E-MVPs on a log axis."""
-    by = "family" if "family" in res.columns and res["family"].notna().any() else "problem"
-    off = tables.offline_runs(res)
-    off = off[off["mvp_only"].astype(str).str.lower().eq("true")]
-    curves = tables.convergence_curves(off, hist, "emvps", by=by)
-    if not curves:
-        return ""
-    parts = ["<h2>Convergence</h2><p class='note'>Per problem family, the median over runs "
-             "of log10 of the residual ||min(x, Ax+b)|| (verified by the framework; the "
-             "solver's own where per-iterate verification was off) against E-MVPs on a log "
-             "axis, with the 25-75 % band; the legend gives each solver's number of runs.</p>"]
-    for family, c in curves.items():
-        parts.append(fig(plots.curves_svg(c, "E-MVPs (log scale)",
-                                          f"Residual against E-MVPs: {family}")))
-    return "\n".join(parts)
 
 
 def _meta_section(meta: dict, res: pd.DataFrame) -> str:
@@ -295,4 +340,4 @@ def _meta_section(meta: dict, res: pd.DataFrame) -> str:
                                 "without a low fidelity (listed in meta.json)"))
     body = "".join(f"<tr><th>{html.escape(k)}</th><td class='text'>{html.escape(str(v))}</td></tr>"
                    for k, v in rows)
-    return f"<h2>Run</h2><table>{body}</table>"
+    return f"<h2 id='run'>Run</h2><table>{body}</table>"

@@ -14,11 +14,11 @@ import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER
 
-__all__ = ["offline_table", "paper_tables", "failures_table", "work_precision",
+__all__ = ["reach_table", "offline_table", "paper_tables", "failures_table", "work_precision",
            "performance_profile", "online_table", "convergence_curves", "LEVELS",
            "solved_mask", "offline_runs", "work_precision_display", "online_runs",
            "online_common_steps", "online_paper_table", "online_step_rows", "lattice_side",
-           "online_paper_display"]
+           "online_paper_display", "online_left_out"]
 
 #: Residual levels of the work-precision table (absolute ``||min(x, Ax+b)||``).
 LEVELS = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -87,43 +87,31 @@ def _solver_order(g: pd.DataFrame) -> tuple:
     return (multi, str(g["solver"].iloc[0]))
 
 
-def paper_tables(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> dict[str, pd.DataFrame]:
-    """The paper's offline table, one per problem set: solver rows, E-MVP statistics.
+def paper_tables(results: pd.DataFrame, baseline: str = BASELINE_SOLVER,
+                 meta: dict | None = None) -> dict[str, pd.DataFrame]:
+    """The paper's offline table per problem set, on common ground.
 
-    Only MVP-only solvers appear (the reference QP solvers work on the dense
-    matrix and count no MVPs). Columns: ``solver``; ``solved`` (verified, out of
-    the runs the solver was given); ``min``, ``median``, ``mean``, ``max`` E-MVPs
-    over the solved runs, with the high-fidelity MVPs in parentheses for
-    multi-fidelity solvers; ``median / <baseline>``, the solver's median E-MVPs
-    divided by the baseline's on the same set (``-`` without a baseline run).
+    Per problem set, the MVP-only, non-reference solvers over the instances every one of
+    them was given (:func:`lcpbench.report.ranking.common_ground`); the table is
+    :func:`lcpbench.report.ranking.ranking_table`, whose ``attrs`` carry the compared
+    instance count (``instances``, ``total``) and the failure penalty.
 
     Returns
     -------
     dict
         ``{problem: DataFrame}``, problems sorted by name.
     """
-    off = offline_runs(results)
-    off = off[_truthy(off["mvp_only"])].copy()
-    if off.empty:
-        return {}
-    off["ok"] = solved_mask(off)
+    from lcpbench.report.ranking import common_ground, ranked_runs, ranking_table
+
+    off = ranked_runs(results, "emvps")
     out = {}
-    for problem, p in off.groupby("problem", sort=True):
-        base = p[(p["solver"] == baseline) & p["ok"]]["emvps"].astype(float)
-        base_med = float(base.median()) if len(base) else np.nan
-        groups = sorted((g for _, g in p.groupby("solver", sort=True)), key=_solver_order)
-        rows = []
-        for g in groups:
-            ok = g[g["ok"]]
-            multi = bool(_truthy(g["multifidelity"]).any())
-            row = {"solver": str(g["solver"].iloc[0]), "solved": f"{len(ok)}/{len(g)}"}
-            row.update(_emvp_stats(ok, multi))
-            med = float(ok["emvps"].astype(float).median()) if len(ok) else np.nan
-            ratio = med / base_med if np.isfinite(med) and np.isfinite(base_med) and base_med > 0 \
-                else np.nan
-            row[f"median / {baseline}"] = f"{ratio:.2f}" if np.isfinite(ratio) else "-"
-            rows.append(row)
-        out[str(problem)] = pd.DataFrame(rows)
+    if off.empty:
+        return out
+    for problem, part in off.groupby("problem", sort=True):
+        cut, info = common_ground(part)
+        table = ranking_table(cut, baseline, meta)
+        table.attrs.update(info)
+        out[str(problem)] = table
     return out
 
 
@@ -148,29 +136,54 @@ def _residual(history: pd.DataFrame) -> pd.Series:
     return v.fillna(pd.to_numeric(history["kkt_abs"], errors="coerce"))
 
 
+def reach_table(results: pd.DataFrame, history: pd.DataFrame, levels=LEVELS) -> pd.DataFrame:
+    """Per run: the E-MVPs and seconds at which it first reached each residual level.
+
+    One row per run of ``results`` (runs without history never reached any level):
+    ``run_id``, ``solver``, ``instance``, ``repeat`` and ``emvps@L`` / ``s@L`` per level
+    (NaN where the run never reached it).
+    """
+    cols = ["run_id", "solver", "instance", "repeat"]
+    out = results.reindex(columns=cols).copy().reset_index(drop=True)
+    h = history[history["run_id"].isin(out["run_id"])].copy() if not history.empty \
+        else history
+    if not h.empty:
+        h["res"] = _residual(h)
+    for lv in levels:
+        key = f"{lv:.0e}"
+        if h.empty:
+            out[f"emvps@{key}"] = np.nan
+            out[f"s@{key}"] = np.nan
+            continue
+        hit = h[h["res"] <= lv].groupby("run_id").first()
+        out[f"emvps@{key}"] = out["run_id"].map(pd.to_numeric(hit["emvps"], errors="coerce"))
+        out[f"s@{key}"] = out["run_id"].map(pd.to_numeric(hit["time_s"], errors="coerce"))
+    return out
+
+
 def work_precision(results: pd.DataFrame, history: pd.DataFrame,
                    levels=LEVELS) -> pd.DataFrame:
     """Median E-MVPs and seconds to first reach each residual level, per solver.
 
-    Only the runs a solver was given count (a multi-fidelity solver is not run
-    on instances without a low fidelity): ``reached@level`` is ``k/m`` over those
-    ``m`` runs. Also the median final error of ``w`` against the reference.
+    Pass the runs of one problem set on common ground (the report does): every
+    solver's ``reached@level`` is then ``k/m`` over the same ``m`` runs, counted from
+    ``results`` (a run that left no history never reached a level). The medians are
+    over the runs that reached the level. Also the median final error of ``w`` against
+    the reference.
     """
-    if history.empty or results.empty:
+    if results.empty:
         return pd.DataFrame()
-    h = history.copy()
-    h["res"] = _residual(h)
-    meta = results.set_index("run_id")[["solver", "problem"]]
-    h = h.join(meta, on="run_id", how="inner")
+    reach = reach_table(results, history, levels)
     rows = []
-    for solver, g in h.groupby("solver", sort=True):
+    for solver, g in reach.groupby("solver", sort=True):
         row = {"solver": solver}
-        runs = g["run_id"].nunique()
         for lv in levels:
-            hit = g[g["res"] <= lv].groupby("run_id").first()
-            row[f"emvps@{lv:.0e}"] = float(np.round(hit["emvps"].median(), 2)) if len(hit) else None
-            row[f"s@{lv:.0e}"] = float(np.round(hit["time_s"].median(), 6)) if len(hit) else None
-            row[f"reached@{lv:.0e}"] = f"{len(hit)}/{runs}"
+            key = f"{lv:.0e}"
+            e = g[f"emvps@{key}"].dropna()
+            t = g[f"s@{key}"].dropna()
+            row[f"emvps@{key}"] = float(np.round(e.median(), 2)) if len(e) else None
+            row[f"s@{key}"] = float(np.round(t.median(), 6)) if len(t) else None
+            row[f"reached@{key}"] = f"{len(e)}/{len(g)}"
         r = results[results["solver"] == solver]
         row["median_ref_err_w"] = _median_sci(r.get("ref_err_w"))
         rows.append(row)
@@ -203,8 +216,12 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
     A problem is one (problem, instance, repeat). A run that was made and not
     solved counts as never solved; a problem a solver was not run on (a
     multi-fidelity solver on an instance without a low fidelity) is left out of
-    that solver's share instead of counting as a failure. Reference (dense)
-    solvers are left out of the E-MVP profile.
+    that solver's share instead of counting as a failure; the report passes the runs of
+    one problem set on common ground, where every solver was given every problem.
+    Reference QP solvers are never profiled.
+
+    The default ``taus`` run from 1 to just past the largest finite ratio, so the
+    curves end where the data do; a failure stays below 1 at every ``tau``.
 
     Returns
     -------
@@ -213,9 +230,9 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
         of the best); ``attrs["given"]`` maps each solver to how many of the
         problems it was run on and ``attrs["problems"]`` is their total.
     """
-    r = offline_runs(results).copy()
-    if metric == "emvps":
-        r = r[_truthy(r["mvp_only"])]
+    from lcpbench.report.ranking import ranked_runs
+
+    r = ranked_runs(results, metric).copy()
     if r.empty:
         return pd.DataFrame()
     r["value"] = np.where(solved_mask(r), pd.to_numeric(r[metric], errors="coerce"), np.inf)
@@ -224,7 +241,10 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
                         values="value", aggfunc="min")
     best = piv.min(axis=1)
     ratio = piv.div(best.where(np.isfinite(best)), axis=0)
-    taus = np.logspace(0, 3, 61) if taus is None else taus
+    if taus is None:
+        finite = ratio.to_numpy()[np.isfinite(ratio.to_numpy())]
+        top = max(2.0, 1.05 * float(finite.max())) if finite.size else 2.0
+        taus = np.geomspace(1.0, top, 61)
     out = {"tau": taus}
     given = {}
     for s in sorted(piv.columns):
@@ -246,7 +266,9 @@ def convergence_curves(results: pd.DataFrame, history: pd.DataFrame, x: str = "e
     With ``by`` (a results column such as ``family``) the curves are computed per
     value of it: ``{value: {solver: curve}}``. The grid is logarithmic from the
     first positive ``x`` any run reached to the largest, so a log axis shows it
-    all; each curve stops where its longest run stopped.
+    all; each curve stops where its longest run stopped. A residual of exactly 0 is
+    drawn a decade below the smallest positive residual of the runs (``floor`` in each
+    curve), never at a fixed tiny value.
     """
     if history.empty:
         return {}
@@ -258,8 +280,15 @@ def convergence_curves(results: pd.DataFrame, history: pd.DataFrame, x: str = "e
             if c:
                 out[str(value)] = c
         return out
-    h = history.copy()
-    h["res"] = _residual(h).clip(lower=1e-20)   # an exact 0 would plot at -inf
+    h = history[history["run_id"].isin(results["run_id"])].copy()
+    if h.empty:
+        return {}
+    res = _residual(h)
+    positive = res[res > 0]
+    # an exact 0 would plot at -inf: draw it a decade below the smallest positive residual
+    # of these runs, so the axis starts at the data
+    floor = float(positive.min()) / 10.0 if len(positive) else 1e-16
+    h["res"] = res.clip(lower=floor)
     h = h.join(results.set_index("run_id")[["solver"]], on="run_id", how="inner")
     xs_all = pd.to_numeric(h[x], errors="coerce")
     positive = xs_all[xs_all > 0]
@@ -286,7 +315,7 @@ def convergence_curves(results: pd.DataFrame, history: pd.DataFrame, x: str = "e
             curves[solver] = {"x": grid, "median": np.nanmedian(arr, axis=0),
                               "lo": np.nanquantile(arr, 0.25, axis=0),
                               "hi": np.nanquantile(arr, 0.75, axis=0),
-                              "runs": len(runs)}
+                              "runs": len(runs), "floor": floor}
     return curves
 
 
@@ -361,36 +390,90 @@ def online_common_steps(results: pd.DataFrame) -> dict[str, dict]:
     return out
 
 
-def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
-    """The finished online steps cut to each scene's common steps, with a ``size`` label.
+def _left_out_steps(on: pd.DataFrame) -> dict[str, dict[str, set]]:
+    """Per scene, the steps kept out of the comparison: warm-up and without contacts.
 
-    ``size`` is ``"3x3x3"`` for a lattice of side 3 (the scene's name when it
-    has no lattice side); ``M`` the number of particles (``m^3``, NaN without a
-    side). Rows are ordered by lattice side, scene, solver and step.
+    Warm-up: the first step each simulation stored (it pays the one-off compilation of
+    the numerical kernels, seconds that say nothing about the solver). Without
+    contacts: a step where some simulation of the scene had no contact (``n == 0``):
+    there is no LCP to solve, so its seconds measure everything but the solver.
+    """
+    out = {}
+    for scene, part in on.groupby("problem", sort=True):
+        steps = pd.to_numeric(part["step"]).astype(int)
+        warm = set(steps.groupby(part["solver"]).min())
+        n = pd.to_numeric(part.get("n", pd.Series(np.nan, index=part.index)), errors="coerce")
+        empty = set(steps[n == 0])
+        out[str(scene)] = {"warm-up": warm, "no contacts": empty - warm}
+    return out
+
+
+def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
+    """The compared online steps of each scene, with a ``size`` label.
+
+    The steps every simulation of the scene finished (:func:`online_common_steps`),
+    less the warm-up steps and the steps without contacts (:func:`online_left_out`
+    lists them apart). ``size`` is ``"3x3x3"`` for a lattice of side 3 (the scene's
+    name when it has no lattice side); ``M`` the number of particles (``m^3``, NaN
+    without a side). Rows are ordered by lattice side, scene, solver and step. The
+    online table and the E-MVP box plot are both built from these rows.
     """
     on = online_runs(results)
     if on.empty:
         return on
     common = online_common_steps(on)
-    keep = [int(r_step) in common[str(scene)]["steps"] for scene, r_step in
-            zip(on["problem"], on["step"])]
+    apart = _left_out_steps(on)
+    keep = [int(r_step) in common[str(scene)]["steps"]
+            and all(int(r_step) not in v for v in apart[str(scene)].values())
+            for scene, r_step in zip(on["problem"], on["step"])]
     cut = on[np.asarray(keep, dtype=bool)].copy()
     sides = {p: lattice_side(g["problem_params"].iloc[0]) if "problem_params" in g else None
-             for p, g in cut.groupby("problem", sort=True)}
+             for p, g in on.groupby("problem", sort=True)}
     labels = {p: f"{m}x{m}x{m}" if m is not None else str(p) for p, m in sides.items()}
     if len(set(labels.values())) < len(labels):      # two scenes of one size: keep them apart
         labels = {p: f"{lab} ({p})" if sides[p] is not None else lab for p, lab in labels.items()}
     cut["size"] = cut["problem"].map(labels)
     cut["M"] = cut["problem"].map(lambda p: float(sides[p] ** 3) if sides[p] is not None
                                   else np.nan)
-    order = {p: i for i, p in enumerate(_scene_order(cut))}
+    order = {p: i for i, p in enumerate(_scene_order(on))}
     cut["_o"] = cut["problem"].map(order)
     return cut.sort_values(["_o", "problem", "solver", "step"]).drop(columns="_o") \
         .reset_index(drop=True)
 
 
+def online_left_out(results: pd.DataFrame) -> pd.DataFrame:
+    """The online steps kept out of the speedups, reported apart.
+
+    One row per scene, solver and reason (``warm-up``, ``no contacts``): the steps and
+    their summed whole-step and collision-resolution seconds. Empty when none.
+    """
+    on = online_runs(results)
+    if on.empty:
+        return pd.DataFrame()
+    rows = []
+    for scene, reasons in _left_out_steps(on).items():
+        part = on[on["problem"] == scene]
+        for solver, g in part.groupby("solver", sort=True):
+            steps = pd.to_numeric(g["step"]).astype(int)
+            for reason, which in reasons.items():
+                sel = g[steps.isin(which)]
+                if sel.empty:
+                    continue
+                rows.append({"scene": scene, "solver": str(solver), "reason": reason,
+                             "steps": ",".join(str(k) for k in sorted(
+                                 pd.to_numeric(sel["step"]).astype(int))),
+                             "total s": float(pd.to_numeric(sel["sim_total_s"]).sum()),
+                             "collision s": float(pd.to_numeric(sel["time_s"]).sum()),
+                             "E-MVPs": float(pd.to_numeric(sel["emvps"], errors="coerce").sum())})
+    return pd.DataFrame(rows)
+
+
 def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
-    """The paper's online table: one row per scene, over the steps all its solvers finished.
+    """The paper's online table: one row per scene, over its compared steps.
+
+    The compared steps are :func:`online_step_rows`: finished by every solver of the
+    scene, warm-up steps and steps without contacts left out (see
+    :func:`online_left_out`).
 
     Columns: ``scene``, ``lattice size`` (``3x3x3``), ``M`` (particles), ``steps``
     (the common steps compared); the baseline's summed total and
@@ -407,7 +490,9 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
     """
     rows_in = online_step_rows(results)
     if rows_in.empty:
-        return pd.DataFrame()
+        out = pd.DataFrame()
+        out.attrs["stored"] = {k: v["stored"] for k, v in online_common_steps(results).items()}
+        return out
     solvers = _online_solver_order(rows_in, baseline)
     stored = {k: v["stored"] for k, v in online_common_steps(results).items()}
     rows = []

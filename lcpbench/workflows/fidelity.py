@@ -19,8 +19,11 @@ Costs
 
 Cache
     Estimating ``c(A)`` takes seconds per instance, so :func:`cached_fidelity_table`
-    keeps each table in a folder (a run store's ``cache/``), keyed by the set file's
-    content and the instances used: re-rendering a report does not recompute it.
+    keeps each table in the user cache directory (:func:`user_cache_dir`:
+    ``$XDG_CACHE_HOME/lcpbench``, by default ``~/.cache/lcpbench``), keyed by the sha256
+    of the set file, the instances used and the study's parameters: it is computed once
+    per set and machine, whatever the output folder, and an edited or regenerated set
+    is computed again. The instances are spread over worker processes (one per core).
 """
 
 from __future__ import annotations
@@ -28,7 +31,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +41,8 @@ import pandas as pd
 
 from lcpbench.workflows.cottle import cottle_c
 
-__all__ = ["TABLE_COLUMNS", "cached_fidelity_table", "fidelity_table", "stored_set_specs"]
+__all__ = ["TABLE_COLUMNS", "cached_fidelity_table", "fidelity_table", "stored_set_specs",
+           "user_cache_dir"]
 
 #: Columns of :func:`fidelity_table`, in order.
 TABLE_COLUMNS = ["fidelity", "model", "p", "eps_gmres", "instances", "log10_max_err",
@@ -87,8 +93,29 @@ def _dense_pairs(lcp, dense):
     return A, lows
 
 
+def _c_values(matrices: list[np.ndarray], jobs: int,
+              progress: Callable[[str], None] | None) -> list[float]:
+    """:func:`cottle_c` of each matrix, over ``jobs`` worker processes, with progress."""
+    say = progress or (lambda text: None)
+    total = len(matrices)
+    if jobs <= 1 or total <= 1:
+        out = []
+        for k, A in enumerate(matrices):
+            out.append(cottle_c(A))
+            say(f"c(A) of instance {k + 1}/{total}")
+        return out
+    with ProcessPoolExecutor(max_workers=min(jobs, total)) as pool:
+        futures = [pool.submit(cottle_c, A) for A in matrices]
+        out = []
+        for k, fut in enumerate(futures):
+            out.append(fut.result())
+            say(f"c(A) of instance {k + 1}/{total}")
+    return out
+
+
 def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
-                   c_values: Sequence[float] | None = None) -> pd.DataFrame:
+                   c_values: Sequence[float] | None = None, jobs: int = 1,
+                   progress: Callable[[str], None] | None = None) -> pd.DataFrame:
     """One row per low fidelity of a stored set: error, cost and the Cottle condition.
 
     Parameters
@@ -101,6 +128,10 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
         Instance ids of the file to use; default all.
     c_values : sequence of float, optional
         ``c(A)`` per instance, if already known; default :func:`cottle_c` of each.
+    jobs : int
+        Worker processes for the ``c(A)`` estimates (1: in this process).
+    progress : callable, optional
+        Called with a line of text after each instance's ``c(A)``.
 
     Returns
     -------
@@ -118,20 +149,25 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
         neighbourhood). Sorted by model, p, eps_gmres (largest first), name.
     """
     rows: dict[str, dict] = {}
-    c_list = list(c_values) if c_values is not None else None
-    count = 0
-    for k, (A, lows) in enumerate(_iter_instances(path_or_lcps, instances)):
-        count += 1
+    pairs = list(_iter_instances(path_or_lcps, instances))
+    if not pairs:
+        raise ValueError("fidelity_table: the set has no instances")
+    if c_values is not None:
+        c_list = [float(c) for c in c_values]
+        if len(c_list) < len(pairs):
+            raise ValueError(f"c_values has {len(c_list)} entries but the set has more "
+                             "instances; pass one c(A) per instance")
+    else:
+        with_low = [k for k, (_, lows) in enumerate(pairs) if lows]
+        found = _c_values([pairs[k][0] for k in with_low], jobs, progress)
+        c_list = [math.nan] * len(pairs)
+        for k, c in zip(with_low, found):
+            c_list[k] = c
+    for k, (A, lows) in enumerate(pairs):
         if not lows:
             continue
         lower = float(np.linalg.eigvalsh(0.5 * (A + A.T))[0]) / A.shape[0]
-        if c_list is not None:
-            if k >= len(c_list):
-                raise ValueError(f"c_values has {len(c_list)} entries but the set has more "
-                                 "instances; pass one c(A) per instance")
-            c = float(c_list[k])
-        else:
-            c = cottle_c(A)
+        c = c_list[k]
         for name, (A_low, ratio, la) in lows.items():
             r = rows.setdefault(name, {"errs": [], "ratios": [], "below": [], "sure": [],
                                        "attrs": la})
@@ -140,8 +176,6 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
             r["ratios"].append(ratio)
             r["below"].append(err < c)
             r["sure"].append(err < lower)
-    if count == 0:
-        raise ValueError("fidelity_table: the set has no instances")
     out = []
     for name, r in rows.items():
         la = r["attrs"]
@@ -219,7 +253,20 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
 
 
 #: Bump when the table's computation changes, so old cache entries are not reused.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+#: The study's parameters, part of the cache key (those of :func:`cottle_c`).
+STUDY_PARAMS = {"starts": 32, "random_starts": 8, "seed": 0, "norm": "inf"}
+
+
+def user_cache_dir() -> Path:
+    """The user cache directory of lcpbench: ``$XDG_CACHE_HOME/lcpbench``.
+
+    ``XDG_CACHE_HOME`` defaults to ``~/.cache`` (the XDG base-directory rule); the
+    folder is created when something is first written to it.
+    """
+    base = os.environ.get("XDG_CACHE_HOME") or ""
+    root = Path(base) if base.strip() and Path(base).is_absolute() else Path.home() / ".cache"
+    return root / "lcpbench"
 
 
 def _cache_key(path: Path, instances: Sequence[str] | None) -> str:
@@ -227,14 +274,22 @@ def _cache_key(path: Path, instances: Sequence[str] | None) -> str:
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
-    digest.update(json.dumps([CACHE_VERSION, list(instances) if instances is not None
-                              else None]).encode())
-    return digest.hexdigest()[:20]
+    digest.update(json.dumps([CACHE_VERSION, STUDY_PARAMS, list(instances)
+                              if instances is not None else None], sort_keys=True).encode())
+    return digest.hexdigest()[:24]
+
+
+def cache_entry(path, instances: Sequence[str] | None = None, cache_dir=None) -> Path:
+    """Where :func:`cached_fidelity_table` keeps the table of ``path`` (``instances``)."""
+    path = Path(path)
+    folder = Path(cache_dir) if cache_dir is not None else user_cache_dir()
+    return folder / "fidelity" / f"{path.stem}-{_cache_key(path, instances)}.csv"
 
 
 def cached_fidelity_table(path, instances: Sequence[str] | None = None,
-                          cache_dir=None) -> pd.DataFrame:
-    """:func:`fidelity_table` of a stored set, kept in ``cache_dir`` between calls.
+                          cache_dir=None, *, jobs: int | None = None,
+                          progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """:func:`fidelity_table` of a stored set, computed once and kept in a cache.
 
     Parameters
     ----------
@@ -243,27 +298,31 @@ def cached_fidelity_table(path, instances: Sequence[str] | None = None,
     instances : sequence of str, optional
         Instance ids to use; default all.
     cache_dir : str or Path, optional
-        Folder of the cache (created when needed); None computes without caching.
+        Folder of the cache (created when needed); default :func:`user_cache_dir`.
+    jobs : int, optional
+        Worker processes for a table not cached yet; default one per core.
+    progress : callable, optional
+        Called with a line of text per instance while the table is computed.
 
     Returns
     -------
     DataFrame
-        As :func:`fidelity_table`. The entry is keyed by the file's content and the
-        instance ids, so an edited or regenerated set is recomputed.
+        As :func:`fidelity_table`. The entry is keyed by the sha256 of the file, the
+        instance ids and :data:`STUDY_PARAMS`, so an edited or regenerated set is
+        recomputed and an unchanged one never is.
     """
-    path = Path(path)
-    if cache_dir is None:
-        return fidelity_table(path, instances=instances)
     from lcpbench.run.store import atomic_write
 
-    entry = Path(cache_dir) / f"fidelity-{path.stem}-{_cache_key(path, instances)}.csv"
+    path = Path(path)
+    entry = cache_entry(path, instances, cache_dir)
     if entry.exists():
         table = pd.read_csv(entry, dtype=str, keep_default_na=False)
         for col in TABLE_COLUMNS[2:]:
             table[col] = pd.to_numeric(table[col], errors="coerce")
         table["instances"] = table["instances"].astype(int)
         return table.reindex(columns=TABLE_COLUMNS)
-    table = fidelity_table(path, instances=instances)
+    jobs = jobs if jobs is not None else (os.cpu_count() or 1)
+    table = fidelity_table(path, instances=instances, jobs=jobs, progress=progress)
     entry.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(entry, table.to_csv(index=False))
     return table
