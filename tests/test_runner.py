@@ -155,3 +155,31 @@ def test_config_file(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('solver = ["bb-pgd"]\n')
     assert main(["run", "--config", str(bad), "--out", str(tmp_path / "p"), "--quiet"]) == 2
+
+
+def test_reference_backends_are_scored_against_the_others(tmp_path):
+    """A reference QP solver is scored against the other backends' answers (leave one out),
+    never against a consensus that contains its own answer."""
+    import numpy as np
+
+    from lcpbench.core.reference import reference_without
+    from lcpbench.report.ranking import references_table
+
+    x = np.ones(2)
+    ref = {"solvers": ["a", "b"], "answers": {"a": (x, np.array([1.0, 0.0]), 1e-12),
+                                              "b": (x, np.array([2.0, 0.0]), 1e-11),
+                                              "c": (x, np.array([3.0, 0.0]), 1e-14)}}
+    assert reference_without(ref, "a")[1][0] == 2.0      # the group's other member
+    assert reference_without(ref, "b")[1][0] == 1.0
+    assert reference_without(ref, "c")[1][0] == 1.0      # best of the group, not c itself
+    assert reference_without({"solvers": ["a"], "answers": {"a": ref["answers"]["a"]}},
+                             "a") is None
+
+    sweep = Sweep(solvers=["clarabel", "osqp"], problems=["random-spd:count=2,n_min=8,n_max=8"])
+    execute(plan(sweep), RunStore(tmp_path), quiet=True)
+    res = pd.read_csv(tmp_path / "results.csv")
+    assert res["ref_err_w_others"].notna().all() and (res["ref_err_w_others"] < 1e-6).all()
+    table = references_table(res).set_index("solver")
+    for name in ("clarabel", "osqp"):
+        assert table.loc[name, "in consensus"] == "2/2"
+        assert table.loc[name, "error of w vs the others"].endswith("(2)")

@@ -57,7 +57,10 @@ class Reference:
         Largest relative difference of ``w`` among the agreeing group, or the
         smallest pairwise difference when no two agree.
     details : dict
-        Per-backend message, residual and w.
+        Per-backend message and residual.
+    answers : dict
+        Each answering backend's ``(x, w, kkt_abs)``: a backend scored as a solver is
+        compared with the others' answers, not with a consensus it belongs to.
     """
 
     x: np.ndarray
@@ -68,11 +71,36 @@ class Reference:
     kkt_abs: float
     disagreement: float
     details: dict = field(default_factory=dict)
+    answers: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return {"x": self.x, "w": self.w, "objective": self.objective,
                 "accepted": self.accepted, "solvers": list(self.solvers),
-                "kkt_abs": self.kkt_abs, "disagreement": self.disagreement}
+                "kkt_abs": self.kkt_abs, "disagreement": self.disagreement,
+                "answers": dict(self.answers)}
+
+    def without(self, name: str) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """``(x, w)`` of the best answer of the backends other than ``name``.
+
+        The best is the lowest residual among the agreeing group less ``name`` (among
+        all other answers if none of the group is left); ``None`` when no other backend
+        answered.
+        """
+        return reference_without(self.as_dict(), name)
+
+
+def reference_without(ref: dict, name: str) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """``(x, w)`` of the best answer in ``ref`` (a :meth:`Reference.as_dict`) not by ``name``.
+
+    Used to score a reference backend against the others (leave one out) instead of
+    against a consensus that contains its own answer.
+    """
+    answers = {k: v for k, v in ref.get("answers", {}).items() if k != name}
+    if not answers:
+        return None
+    group = [k for k in ref.get("solvers", []) if k in answers] or list(answers)
+    best = min(group, key=lambda k: answers[k][2])
+    return answers[best][0], answers[best][1]
 
 
 def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
@@ -174,4 +202,4 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
     x, w, res = sols[pick]
     return Reference(x=x, w=w, objective=objective(x, w, b), accepted=accepted,
                      solvers=sorted(best_group), kkt_abs=res, disagreement=best_spread,
-                     details=details)
+                     details=details, answers=sols)

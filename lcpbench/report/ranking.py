@@ -200,10 +200,10 @@ def references_table(results: pd.DataFrame) -> pd.DataFrame:
     ``median residual`` (the framework's verified ``||min(x, Ax+b)||``, which needs no
     reference), ``reference made of`` (the most frequent source of the set's reference:
     the consensus members, or a stored or planted solution), ``in consensus`` (on how
-    many instances the solver was one of the consensus that defines the reference) and ``error of w vs the others`` (median
-    relative error of ``w`` on the instances whose reference did not include this
-    solver; ``-`` when it was in every consensus: there its error against a reference
-    made of itself says nothing).
+    many instances the solver was one of the consensus that defines the reference) and
+    ``error of w vs the others`` (median relative error of ``w`` against a reference that
+    excludes this solver: the set's reference where it was not a member, else the best
+    answer of the other backends (leave one out); ``-`` when no other answer exists).
     """
     off = _offline(results)
     if off.empty:
@@ -214,8 +214,13 @@ def references_table(results: pd.DataFrame) -> pd.DataFrame:
         name = str(g["solver_name"].iloc[0]) if "solver_name" in g else str(solver)
         members = g.get("ref_solvers", pd.Series("", index=g.index)).fillna("").astype(str)
         inside = members.map(lambda s: name in [x.strip() for x in s.split(",")])
-        outside = pd.to_numeric(g.loc[~inside, "ref_err_w"], errors="coerce").dropna() \
-            if "ref_err_w" in g else pd.Series(dtype=float)
+        err = pd.to_numeric(g["ref_err_w"], errors="coerce") if "ref_err_w" in g \
+            else pd.Series(np.nan, index=g.index)
+        if "ref_err_w_others" in g:          # leave one out: against the other backends
+            err = err.where(~inside, pd.to_numeric(g["ref_err_w_others"], errors="coerce"))
+        else:
+            err = err.where(~inside)
+        outside = err.dropna()
         res = pd.to_numeric(g.get("verified_kkt_abs"), errors="coerce").dropna()
         rows.append({"problem": str(problem), "solver": str(solver),
                      "solved": f"{int(truthy(g['solved']).sum())}/{len(g)}",

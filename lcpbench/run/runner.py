@@ -36,6 +36,7 @@ from lcpbench.core.context import Budget
 from lcpbench.core.lcp import LCP
 from lcpbench.core.reference import default_reference_seconds
 from lcpbench.core.reference import reference as consensus_reference
+from lcpbench.core.reference import reference_without
 from lcpbench.core.registry import get_problem, get_solver
 from lcpbench.core.specs import make_params
 from lcpbench.run.executors import call_with_deadline
@@ -178,6 +179,10 @@ def perform(run: RunSpec, lcp: LCP, ref: Optional[dict], timeout: Optional[float
         row["ref_err_objective"] = abs(f - float(ref["objective"])) / max(
             1.0, abs(float(ref["objective"])))
         row["ref_solvers"] = ",".join(ref.get("solvers", []))
+        other = reference_without(ref, run.solver.name) if run.solver.name in ref.get(
+            "answers", {}) else None
+        if other is not None:               # a reference backend: scored against the others
+            row["ref_err_w_others"] = _rel(w, other[1])
     row["finished"] = utc_now()
     return row, res.history
 

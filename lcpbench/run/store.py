@@ -53,6 +53,7 @@ RESULT_COLUMNS = [
     "tol", "stop", "repeat", "status", "message", "solved", "false_convergence",
     "claimed_kkt_abs", "verified_kkt_abs", "verified_kkt_inf", "verified_comp_gap",
     "verified_infeas_x", "verified_infeas_w", "threshold", "ref_err_w", "ref_err_objective",
+    "ref_err_w_others",
     "ref_solvers", "mvps", "lofi_mvps", "lofi_mvps_total", "emvps", "iterations", "time_s",
     "mvp_time_s", "info", "step", "sim_total_s", "max_overlap", "started", "finished",
     "row_crc",
