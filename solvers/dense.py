@@ -25,16 +25,15 @@ honest and the reported ``w`` independent of the dense sweeps:
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import Bounds, CheckedParams
 
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
 

@@ -31,12 +31,12 @@ verified residual is below 1e-9 on every instance except OSQP on the
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
-from lcpbench.toolkit.qp import solve_and_refine
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.toolkit.qp import solve_and_refine
 
 __all__ = ["DEFAULT_TOLERANCES", "make_reference_solver"]
 

@@ -44,8 +44,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
-    from lcpbench.workflows.simulate import (DEFAULT_OVERLAP_TOL, DEFAULT_QN_MEMORY,
-                                             Interrupted, simulate)
+    from lcpbench.workflows.simulate import (
+        DEFAULT_OVERLAP_TOL,
+        DEFAULT_QN_MEMORY,
+        Interrupted,
+        simulate,
+    )
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"

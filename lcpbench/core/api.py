@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import traceback
 import warnings
-from typing import Any, Callable, Optional, Union
+from collections.abc import Callable
+from typing import Any, Optional, Union
 
 import numpy as np
 import scipy.sparse as sp
@@ -13,13 +14,13 @@ from scipy.sparse.linalg import LinearOperator
 from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.deadline import Deadline
+from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
 from lcpbench.core.registry import get_solver
-from lcpbench.core.specs import make_params, parse_spec
-from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import make_params, parse_spec
 
 __all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any
 
 import numpy as np
 
 from lcpbench.core.lcp import LCP
-from lcpbench.toolkit.qp import solve_and_refine
 from lcpbench.core.residuals import kkt_abs, objective
+from lcpbench.toolkit.qp import solve_and_refine
 
 __all__ = ["Reference", "reference", "AGREE_RTOL"]
 
@@ -55,7 +56,7 @@ class Reference:
 
 
 def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
-    return float(np.linalg.norm(w1 - w2) / max(1.0, np.linalg.norm(w1), np.linalg.norm(w2)))
+    return float(np.linalg.norm(w1 - w2) / max(1.0, float(np.linalg.norm(w1)), float(np.linalg.norm(w2))))
 
 
 def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp"),
@@ -89,7 +90,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
         z = np.zeros(0)
         return Reference(z, z, 0.0, True, list(backends), 0.0, 0.0)
     sols = {}
-    details = {}
+    details: dict[str, Any] = {}
     if lcp.A.rtol is not None:
         scale = float(np.max(np.abs(A)))
         details["asymmetry"] = float(np.max(np.abs(A - A.T))) / scale if scale > 0 else 0.0
@@ -108,7 +109,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
                            + "; ".join(details[nm]["message"] for nm in backends))
     names = list(sols)
     best_group, best_spread = [names[0]], float("inf")
-    for i, a in enumerate(names):
+    for a in names:
         group = [a] + [c for c in names if c != a and _rel(sols[a][1], sols[c][1]) <= rtol]
         spread = max((_rel(sols[p][1], sols[q][1]) for p in group for q in group if p < q),
                      default=float("inf"))

@@ -225,7 +225,7 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
     best = piv.min(axis=1)
     ratio = piv.div(best.where(np.isfinite(best)), axis=0)
     taus = np.logspace(0, 3, 61) if taus is None else taus
-    out = {"tau": taus}
+    out: dict[str, object] = {"tau": taus}
     given = {}
     for s in sorted(piv.columns):
         made = piv[s].notna().to_numpy()
@@ -381,8 +381,8 @@ def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
     if len(set(labels.values())) < len(labels):      # two scenes of one size: keep them apart
         labels = {p: f"{lab} ({p})" if sides[p] is not None else lab for p, lab in labels.items()}
     cut["size"] = cut["problem"].map(labels)
-    cut["M"] = cut["problem"].map(lambda p: float(sides[p] ** 3) if sides[p] is not None
-                                  else np.nan)
+    cubes = {p: float(m ** 3) if m is not None else np.nan for p, m in sides.items()}
+    cut["M"] = cut["problem"].map(cubes)
     order = {p: i for i, p in enumerate(_scene_order(cut))}
     cut["_o"] = cut["problem"].map(order)
     return cut.sort_values(["_o", "problem", "solver", "step"]).drop(columns="_o") \
@@ -428,8 +428,8 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
                 continue
             mine = sums.get(s)
             for j, what in ((0, "total"), (1, "collision")):
-                ok = base is not None and mine is not None and mine[j] > 0
-                row[f"{s} {what} speedup"] = base[j] / mine[j] if ok else np.nan
+                row[f"{s} {what} speedup"] = (base[j] / mine[j] if base is not None
+                                              and mine is not None and mine[j] > 0 else np.nan)
         for s in solvers:
             g = part[part["solver"] == s]
             for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs")):

@@ -24,7 +24,8 @@ import pickle
 import select
 import signal
 import time
-from typing import Callable, Optional
+from collections.abc import Callable
+from typing import Optional
 
 __all__ = ["ForkedCall", "call_with_deadline", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor",
            "EXECUTORS"]
@@ -66,7 +67,7 @@ class ForkedCall:
         self.pid, self.fd = pid, r
         self.chunks: list[bytes] = []
         self.done = False
-        self.result = None
+        self.result: Optional[tuple[str, object]] = None
 
     def poll(self, wait: float = 0.0) -> bool:
         """Read what the child sent; True once it has finished (or been killed)."""

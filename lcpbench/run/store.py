@@ -19,8 +19,9 @@ import io
 import json
 import os
 import zlib
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable, Optional
+from typing import Optional
 
 import pandas as pd
 
@@ -76,7 +77,7 @@ class RunLock:
         self.path = Path(path)
         self.fd: Optional[int] = None
 
-    def __enter__(self) -> "RunLock":
+    def __enter__(self) -> RunLock:
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -216,7 +217,7 @@ class RunStore:
         self.corrupt += [(str(path), i, reason) for i, reason in bad]
 
     # ------------------------------------------------------------------ lock
-    def lock(self) -> "RunLock":
+    def lock(self) -> RunLock:
         """Exclusive writer lock on this folder (see :class:`RunLock`)."""
         return RunLock(self.path / ".lock")
 

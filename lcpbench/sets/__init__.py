@@ -5,8 +5,14 @@ the cost convention. Problem plugins read sets with :func:`read_set`; ``lcpbench
 writes them with :class:`SetWriter`.
 """
 
-from lcpbench.sets.common import (COST_CONVENTION, FORMAT, VERSION, StoredSetError,
-                                  parse_instances, set_problem_name)
+from lcpbench.sets.common import (
+                                  COST_CONVENTION,
+                                  FORMAT,
+                                  VERSION,
+                                  StoredSetError,
+                                  parse_instances,
+                                  set_problem_name,
+)
 from lcpbench.sets.read import instance_ids, read_instance, read_set, set_info
 from lcpbench.sets.write import SetWriter
 

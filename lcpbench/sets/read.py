@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any, Optional
 
 import h5py
 import numpy as np
@@ -11,8 +12,16 @@ import numpy as np
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import Operator
 from lcpbench.core.registry import stored_sets
-from lcpbench.sets.common import (_INCOMPLETE, _INSTANCES, _SHA, FORMAT, VERSION, PathLike, StoredSetError,
-                                  _digest)
+from lcpbench.sets.common import (
+    _INCOMPLETE,
+    _INSTANCES,
+    _SHA,
+    FORMAT,
+    VERSION,
+    PathLike,
+    StoredSetError,
+    _digest,
+)
 
 __all__ = ["read_set", "read_instance", "set_info", "instance_ids"]
 

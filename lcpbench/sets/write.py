@@ -4,18 +4,29 @@ from __future__ import annotations
 
 import json
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping, Optional, Union
+from typing import Any, Optional, Union
 
 import h5py
 import numpy as np
 
+from lcpbench.core.clock import utc_now
 from lcpbench.core.operator import Operator, dense_uncounted
 from lcpbench.core.reference import Reference
-from lcpbench.sets.common import (_ID_RE, _INCOMPLETE, _INSTANCES, _SHA, COST_CONVENTION, FORMAT,
-                                  VERSION, PathLike, StoredSetError, _digest)
+from lcpbench.sets.common import (
+    _ID_RE,
+    _INCOMPLETE,
+    _INSTANCES,
+    _SHA,
+    COST_CONVENTION,
+    FORMAT,
+    VERSION,
+    PathLike,
+    StoredSetError,
+    _digest,
+)
 from lcpbench.sets.read import _check_root
-from lcpbench.core.clock import utc_now
 
 __all__ = ["SetWriter"]
 
@@ -120,14 +131,14 @@ class SetWriter:
         self._f: Optional[h5py.File] = None
 
     # -------------------------------------------------------------- context
-    def __enter__(self) -> "SetWriter":
+    def __enter__(self) -> SetWriter:
         self.open()
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def open(self) -> "SetWriter":
+    def open(self) -> SetWriter:
         """Open (or create) the file, check it and clean up half-written instances."""
         if self._f is not None:
             return self

@@ -86,7 +86,7 @@ def save_checkpoint(path: Path, ckpt: Checkpoint) -> None:
     """Write ``ckpt`` to ``path`` atomically (temporary file, fsync, rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays: dict[str, np.ndarray] = {}
+    arrays: dict[str, Any] = {}   # Any: np.savez(**arrays) also takes keyword flags
     for name, value in ckpt.scene_state.items():
         arrays[f"scene/{name}"] = np.asarray(value)
     if ckpt.history is not None:
