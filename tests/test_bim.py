@@ -121,7 +121,10 @@ def test_exterior_expansion_matches_quadrature_and_jump():
 
 # ---- step 2: one sphere ------------------------------------------------------------------
 
-@pytest.mark.parametrize("p", list(range(1, 13)))
+# p = 10-12 take 6-8 s of CPU each (most of this file's time); p = 1-9 check the same
+# exactness in the README's command, and .ci/run runs the rest.
+@pytest.mark.parametrize("p", [*range(1, 10), *(pytest.param(p, marks=pytest.mark.slow)
+                                                 for p in range(10, 13))])
 def test_one_sphere_exact(p):
     ft = np.array([1.0, -2.0, 3.0, 0.5, 1.5, -1.0])
     for a, mu in ((1.0, 1.0), (0.3, 2.5), (4.0, 0.1)):

@@ -244,7 +244,7 @@ def test_mvp_solvers_at_n_20000_sparse_and_linear_operator_within_a_memory_bound
         low = {"low": A + 1e-3 * sp.eye(n)} if solver == "bi-pqn" else None
         tracemalloc.start()
         res = lcpbench.solve(high, b, solver=solver + (":low=low" if low else ""), low=low,
-                             max_emvps=60)
+                             low_cost=0.1 if low else None, max_emvps=60)
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         assert res.status != Status.failed, res.message
