@@ -56,7 +56,8 @@ class Reference:
 
 
 def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
-    return float(np.linalg.norm(w1 - w2) / max(1.0, float(np.linalg.norm(w1)), float(np.linalg.norm(w2))))
+    scale = max(1.0, float(np.linalg.norm(w1)), float(np.linalg.norm(w2)))
+    return float(np.linalg.norm(w1 - w2)) / scale
 
 
 def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp"),
