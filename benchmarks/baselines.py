@@ -22,10 +22,10 @@ from __future__ import annotations
 import argparse
 
 from common import HARD, instances, print_markdown_table, progress, run_set, solver_names
-from lcpbench.problems.random import with_perturbed_lows
 
 import lcpbench
 from lcpbench.core.registry import solvers
+from lcpbench.problems.random import with_perturbed_lows
 
 MULTI_SPECS = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}
 

@@ -19,7 +19,6 @@ from pathlib import Path
 
 from lcpbench.core.registry import stored_sets
 from lcpbench.sets import StoredSetError, instance_ids, parse_instances
-
 from lcpbench.workflows.fidelity import fidelity_table
 
 

@@ -25,6 +25,7 @@ import argparse
 from collections import defaultdict
 
 import numpy as np
+from common import progress
 
 import lcpbench
 from lcpbench.core.operator import dense_uncounted
@@ -32,8 +33,6 @@ from lcpbench.core.residuals import kkt_abs
 from lcpbench.problems.synthetic_low import SyntheticLowParams, parse_low_name, synthetic_low
 from lcpbench.toolkit.pqn_levels import optimal_step
 from lcpbench.toolkit.qp import solve_and_refine
-
-from common import progress
 
 TOL = 1e-8
 
@@ -82,7 +81,7 @@ def set_rows(path: str, instances: str, oracle: bool, errors: tuple = ()) -> lis
     if errors:
         params = SyntheticLowParams(path=path, instances=instances, errors=errors)
     lcps = synthetic_low(params)
-    base = {s: _median([lcpbench.solve(l, solver=s, tol=TOL).emvps for l in lcps])
+    base = {s: _median([lcpbench.solve(lcp, solver=s, tol=TOL).emvps for lcp in lcps])
             for s in ("bb-pgd", "mono-pqn")}
     groups: dict = defaultdict(lambda: defaultdict(list))
     for lcp in lcps:

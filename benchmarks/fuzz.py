@@ -55,9 +55,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
-import traceback
-from collections import Counter
-from multiprocessing import Pool
+import traceback  # noqa: E402
+from collections import Counter  # noqa: E402
+from multiprocessing import Pool  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402

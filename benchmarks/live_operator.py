@@ -33,16 +33,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from common import packed_lattice
 
 
 def worker(state: str, m: int, p: int, solver: str) -> None:
     """One step's build and solve in this process's lcpbench; prints a JSON line."""
     from lcpbench.core.api import run_solver
-    from lcpbench.problems.suspension.scene import LatticeScene
-
     from lcpbench.core.specs import parse_spec
+    from lcpbench.problems.suspension.scene import LatticeScene
 
     name, params = parse_spec(solver)
     # a multi-fidelity solver gets the low its spec names (p4e6 when it names none)

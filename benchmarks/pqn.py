@@ -20,9 +20,15 @@ import itertools
 import sys
 
 import numpy as np
-
-from common import (HARD, applicable, instances, print_markdown_table, progress, run_set,
-                    solver_names)
+from common import (
+    HARD,
+    applicable,
+    instances,
+    print_markdown_table,
+    progress,
+    run_set,
+    solver_names,
+)
 
 
 def medians(solver: str, lcps, tol: float = 1e-8) -> tuple[float, int, int]:
@@ -82,7 +88,7 @@ def tune(quick: bool) -> None:
     for ir, im, wr in itertools.product((0.1, 1e-2, 1e-3), (10, 20, 50), (0.1, 1e-3)):
         spec = f"bi-pqn:inner_rtol={ir},inner_max_iter={im},warm_rtol={wr}"
         e = {ratio: [] for ratio in (0.1, 0.01)}
-        for rel, ratio, ps in pairs:
+        for _rel, ratio, ps in pairs:
             e[ratio].append(medians(spec, ps)[0])
         print(f"| {ir:g} | {im} | {wr:g} | {np.median(e[0.1]):.2f} | {np.median(e[0.01]):.2f} |")
         sys.stdout.flush()

@@ -15,11 +15,11 @@ from .core.lcp import LCP
 from .core.operator import BudgetExhausted, Operator
 from .core.reference import Reference, reference
 from .core.registry import get_problem, get_solver, register_problem, register_solver
-from .core.specs import parse_spec
 from .core.registry import problems as list_problems
 from .core.registry import solvers as list_solvers
 from .core.residuals import StopRule
 from .core.result import SolveResult, Status
+from .core.specs import parse_spec
 from .toolkit.quasinewton import SecantMemory
 
 __version__ = "0.1.0"

@@ -13,14 +13,13 @@ is an error.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, ClassVar
 
 from lcpbench import LCP, register_problem
 from lcpbench.core.specs import Bounds, CheckedParams
 
 from .fclib import FCLIB_DEFAULT_SYMMETRIZE_RTOL, read_fclib_local, write_fclib_local
-from pathlib import Path
-
 from .formats import UnsupportedProblem, input_files, read_supported
 from .siconos import SICONOS_STORAGES, SiconosFormatError, read_siconos_lcp, write_siconos_lcp
 

@@ -21,8 +21,9 @@ Symmetry policy
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, Union
+from typing import Union
 
 import numpy as np
 import scipy.sparse as sp

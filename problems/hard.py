@@ -10,20 +10,20 @@ a known exact solution store it in ``LCP.reference`` (``x``, ``w``,
 ``objective``), with ``w`` the planted value (``A x + b`` agrees with it to
 rounding).
 
-Families
---------
-planted       random SPD, a planted complementary solution with active, inactive
-              and degenerate (x_i = w_i = 0) indices
-spd-cond      SPD with condition numbers 1e1..1e10 (log-spaced across instances)
-singular-psd  A = J J' with redundant contacts (duplicate / combination rows of J)
-fathi         Fathi's ill-conditioned problem (Murty, "Linear complementarity,
-              linear and nonlinear programming", 1988): A = L L', x* = e1
-tiny          n = 0, 1, 2 corner cases
-all-inactive  b >= 0: the solution is x = 0
-bad-scale     b with magnitudes 1e-12..1e6 and mixed signs
-bb-cycle      small SPD instances on which projected BB without line search cycles
-              or diverges (found by ``benchmarks/find_bb_cycles.py``; the matrices
-              are in ``data/bb_cycle.json``)
+Families::
+
+    planted       random SPD, a planted complementary solution with active, inactive
+                  and degenerate (x_i = w_i = 0) indices
+    spd-cond      SPD with condition numbers 1e1..1e10 (log-spaced across instances)
+    singular-psd  A = J J' with redundant contacts (duplicate / combination rows of J)
+    fathi         Fathi's ill-conditioned problem (Murty, "Linear complementarity,
+                  linear and nonlinear programming", 1988): A = L L', x* = e1
+    tiny          n = 0, 1, 2 corner cases
+    all-inactive  b >= 0: the solution is x = 0
+    bad-scale     b with magnitudes 1e-12..1e6 and mixed signs
+    bb-cycle      small SPD instances on which projected BB without line search cycles
+                  or diverges (found by ``benchmarks/find_bb_cycles.py``; the matrices
+                  are in ``data/bb_cycle.json``)
 """
 
 from __future__ import annotations
@@ -37,13 +37,24 @@ from typing import Annotated
 import numpy as np
 
 from lcpbench import LCP, register_problem
+from lcpbench.core.guards import dense_family
 from lcpbench.core.specs import Bounds, CheckedParams
 
-from lcpbench.core.guards import dense_family
-
-from .synthetic import (Cond, Count, NonNegative, SeededParams, Size, check_flops, meta,
-                        planted_b, planted_pair, random_spd_matrix, reference, seeded,
-                        spd_estimate)
+from .synthetic import (
+    Cond,
+    Count,
+    NonNegative,
+    SeededParams,
+    Size,
+    check_flops,
+    meta,
+    planted_b,
+    planted_pair,
+    random_spd_matrix,
+    reference,
+    seeded,
+    spd_estimate,
+)
 
 __all__ = ["planted", "spd_cond", "singular_psd", "fathi", "tiny", "all_inactive",
            "bad_scale", "bb_cycle", "random_spd_matrix", "planted_b", "fathi_matrix"]

@@ -67,7 +67,7 @@ class InexactInverse(LinearOperator):
                                f"{res:.3g} after {10 * n} iterations)")
         return y
 
-    def _adjoint(self) -> "InexactInverse":
+    def _adjoint(self) -> InexactInverse:
         return self
 
     def exact(self, v: np.ndarray) -> np.ndarray:

@@ -20,8 +20,16 @@ import numpy as np
 from lcpbench import LCP, Operator, register_problem
 from lcpbench.core.specs import Bounds
 
-from .synthetic import (Cond, Count, SeededParams, Size, meta, random_spd_matrix, seeded,
-                        spd_estimate)
+from .synthetic import (
+    Cond,
+    Count,
+    SeededParams,
+    Size,
+    meta,
+    random_spd_matrix,
+    seeded,
+    spd_estimate,
+)
 
 __all__ = ["random_spd", "bifidelity", "symmetric_perturbation", "with_perturbed_lows",
            "PERTURBED_LOWS"]

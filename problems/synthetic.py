@@ -9,8 +9,9 @@ a family's parameters are built.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Callable, Optional
+from typing import Annotated, Optional
 
 import numpy as np
 

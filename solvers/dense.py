@@ -33,16 +33,15 @@ against 16 ms on one thread).
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.blas import on_one_blas_thread
 
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]

@@ -52,18 +52,17 @@ restarts, ends the solve ``stagnated``.
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 from scipy.optimize import minimize
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext, StopSolver
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import Bounds, CheckedParams
 
 __all__ = ["LBFGSBParams", "lbfgsb"]
 
@@ -107,7 +106,7 @@ class _Evaluator:
     def __init__(self, ctx: SolverContext, size: int):
         self.ctx = ctx
         self.size = size
-        self.store: "OrderedDict[bytes, np.ndarray]" = OrderedDict()
+        self.store: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self.evaluations = 0       # distinct points multiplied (zero vectors included)
         self.calls = 0             # calls from scipy (cache hits included)
         self.x_ref = np.zeros(ctx.n)

@@ -74,17 +74,18 @@ the defaults stay with the source so the baseline is the paper's.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Callable, Literal, Optional
+from typing import Annotated, Literal, Optional
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, gmres, minres
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
-from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.toolkit.confirm import ConfirmedReport
 
 __all__ = ["MinMapParams", "minmap_newton"]
 

@@ -19,17 +19,16 @@ forms ``A y`` from ``A x_k`` and ``A x_{k-1}``.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
-
 from collections import deque
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.quasinewton import free_secant_pair
 from lcpbench.toolkit.steps import cauchy_step
 

@@ -34,8 +34,15 @@ from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.confirm import ConfirmedReport
-from lcpbench.toolkit.pqn_levels import (BiOptions, Counters, MonoOptions, Pairs, bi_level,
-                                         low_start, mono_level)
+from lcpbench.toolkit.pqn_levels import (
+    BiOptions,
+    Counters,
+    MonoOptions,
+    Pairs,
+    bi_level,
+    low_start,
+    mono_level,
+)
 from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
@@ -154,6 +161,8 @@ MultiPQNParams.__doc__ = BiPQNParams.__doc__.replace("Parameters of bi-pqn.", "P
         ``lows=[p6,p4,p3]`` (empty: every low operator of the LCP, ordered by
         decreasing cost).
 
+    Notes
+    -----
     multi-pqn's ``start`` defaults to ``high``: solving the first low problem
     through the whole chain cost more than it saved on the shipped sets
     (median E-MVPs with all lows, ``lattice-bim-m3`` 14.1 against 13.0,

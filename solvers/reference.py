@@ -37,13 +37,13 @@ on some 2 x 2 infeasible problems) ends the solve as ``timeout`` at the start.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
 from lcpbench.core.reference import default_reference_seconds
-from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 
 __all__ = ["DEFAULT_TOLERANCES", "make_reference_solver"]
 

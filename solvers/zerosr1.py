@@ -38,16 +38,15 @@ Choices the source leaves open or makes differently (lcpbench's, documented):
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
 from lcpbench import register_solver
-from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult
+from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.quasinewton import free_secant_pair
 from lcpbench.toolkit.steps import cauchy_step
 

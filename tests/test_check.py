@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 import lcpbench
-from lcpbench.core import registry
-from lcpbench.workflows.check import check, default_baseline, default_specs, load_baselines
 from lcpbench.cli import main
-from lcpbench.workflows.generate import generate
+from lcpbench.core import registry
 from lcpbench.problems import stored as stored_mod
 from lcpbench.problems.stored import register_shipped_sets
 from lcpbench.sets import SetWriter, read_set, set_info
+from lcpbench.workflows.check import check, default_baseline, default_specs, load_baselines
+from lcpbench.workflows.generate import generate
 
 SCENE = "lattice:m=3,model=rpy"
 

@@ -6,15 +6,22 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from lcp_cases import planted
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 import lcpbench
 from lcpbench import LCP, Budget, Operator, Status, register_solver
 from lcpbench.core.operator import apply_uncounted, dense_uncounted
-from lcpbench.core.residuals import (all_residuals, complementarity_gap, fischer_burmeister, kkt_abs,
-                                kkt_abs_inf, kkt_rel, make_stop_rule, objective)
-
-from lcp_cases import planted
+from lcpbench.core.residuals import (
+    all_residuals,
+    complementarity_gap,
+    fischer_burmeister,
+    kkt_abs,
+    kkt_abs_inf,
+    kkt_rel,
+    make_stop_rule,
+    objective,
+)
 
 
 def _spd(n=6, seed=0):

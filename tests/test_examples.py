@@ -24,7 +24,7 @@ def test_readme_time_stepper_snippet_runs_for_several_steps():
     A = random_spd_matrix(rng, 80, 30.0)
     A_low = A + symmetric_perturbation(rng, A, 1e-2)
     env = {"A": A, "A_low": (A_low + A_low.T) / 2, "x_prev": None, "state": None}
-    for step in range(3):
+    for _ in range(3):
         env["b"] = rng.standard_normal(80)
         exec(code, env)                                   # asserts res.solved itself
         env["x_prev"] = env["x"]

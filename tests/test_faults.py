@@ -12,12 +12,12 @@ import sys
 import time
 from pathlib import Path
 
+import misbehave_plugin
 import pandas as pd
 import pytest
 
-import misbehave_plugin
-from lcpbench.run import executors
 from lcpbench.cli import main
+from lcpbench.run import executors
 from lcpbench.run.runner import execute, plan
 from lcpbench.run.store import RunStore, atomic_write
 from lcpbench.run.sweep import Sweep

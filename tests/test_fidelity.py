@@ -7,10 +7,10 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from lcpbench.sets import SetWriter
 
 from lcpbench import LCP, Operator
 from lcpbench.report.fidelity import cottle_heatmap_svg, fidelity_section, heatmap_svg, heatmaps
+from lcpbench.sets import SetWriter
 from lcpbench.workflows.cottle import cottle_bounds, cottle_c
 from lcpbench.workflows.fidelity import TABLE_COLUMNS, fidelity_table, stored_set_specs
 

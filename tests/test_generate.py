@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from lcpbench.cli import main
-from lcpbench.workflows.generate import generate, instance_id, parse_lows, parse_steps
 from lcpbench.core.operator import dense_uncounted
-from lcpbench.sets import instance_ids, read_instance, read_set, set_info
 from lcpbench.core.registry import make_scene
+from lcpbench.sets import instance_ids, read_instance, read_set, set_info
+from lcpbench.workflows.generate import generate, instance_id, parse_lows, parse_steps
 
 SCENE = "lattice:m=3,model=rpy"
 STEPS = "20-21"          # the cluster has formed: n ~ 45 contacts, many active
@@ -187,7 +187,7 @@ def test_resume_starts_from_the_checkpoint_not_step_0(tmp_path, capsys):
     more = generate(SCENE, "20-22", path, lows=["self"], progress=False)
     assert more.kept == [instance_id(20)] and more.written == [instance_id(21), instance_id(22)]
     assert more.simulated == 2                      # steps 21 and 22 only, not 0-22
-    fresh = generate(SCENE, "21-22", tmp_path / "fresh.h5", lows=["self"], progress=False)
+    generate(SCENE, "21-22", tmp_path / "fresh.h5", lows=["self"], progress=False)
     for iid in (instance_id(21), instance_id(22)):
         a, b = read_instance(path, iid), read_instance(tmp_path / "fresh.h5", iid)
         np.testing.assert_array_equal(a.dense(), b.dense())

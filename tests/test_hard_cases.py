@@ -20,10 +20,10 @@ import pytest
 
 import lcpbench
 from lcpbench.core.context import accuracy_floor
-from lcpbench.problems.inexact import exact_product
-from lcpbench.problems.random import with_perturbed_lows
 from lcpbench.core.registry import get_problem, solvers
 from lcpbench.core.specs import make_params, parse_spec
+from lcpbench.problems.inexact import exact_product
+from lcpbench.problems.random import with_perturbed_lows
 
 HARD = ["planted", "spd-cond", "singular-psd", "fathi", "tiny", "all-inactive", "bad-scale",
         "bb-cycle", "inexact", "inexact:rtol=1e-4"]

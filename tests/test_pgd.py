@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 from lcp_cases import planted
-from lcpbench.problems.hard import random_spd_matrix
-from lcpbench.solvers.pgd import power_iteration
-from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 import lcpbench
 from lcpbench import LCP, Operator, Status
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params
+from lcpbench.problems.hard import random_spd_matrix
+from lcpbench.solvers.pgd import power_iteration
+from lcpbench.solvers.zerosr1 import prox_rank1_nonneg
 
 
 def _planted(seed, n=60, cond=50.0):

@@ -10,8 +10,12 @@ import pytest
 import lcpbench
 from lcpbench import LCP, Operator
 from lcpbench.core.residuals import StopRule, make_stop_rule
-from lcpbench.problems.synthetic_low import (SyntheticLowParams, low_error, parse_low_name,
-                                             synthetic_low)
+from lcpbench.problems.synthetic_low import (
+    SyntheticLowParams,
+    low_error,
+    parse_low_name,
+    synthetic_low,
+)
 from lcpbench.report.fidelity_map import fidelity_map_section, fidelity_map_table
 from lcpbench.toolkit.pqn_levels import BiOptions, forcing_term, model_check
 from lcpbench.toolkit.quasinewton import free_secant_pair
@@ -114,8 +118,9 @@ def test_zero_sr1_and_mono_pqn_use_the_free_pair():
     lcp = _problem(seed=2, warm=True)
     for spec, off in (("zero-sr1", "zero-sr1:first_step=1e-3"),
                       ("mono-pqn", "mono-pqn:free_pair=false")):
-        res = lcpbench.solve(lcp, solver=spec, tol=1e-9)
-        assert res.solved, res.summary()
+        for s in (spec, off):
+            res = lcpbench.solve(lcp, solver=s, tol=1e-9)
+            assert res.solved, res.summary()
     assert lcpbench.solve(lcp, solver="mono-pqn", tol=1e-9).info.get("free_pair")
     assert "free_pair" not in lcpbench.solve(lcp, solver="mono-pqn:free_pair=false",
                                              tol=1e-9).info

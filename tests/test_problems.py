@@ -10,8 +10,8 @@ import pytest
 
 import lcpbench
 from lcpbench.core.registry import get_problem
-from lcpbench.core.specs import Bounds, CheckedParams, make_params
 from lcpbench.core.residuals import kkt_abs
+from lcpbench.core.specs import Bounds, CheckedParams, make_params
 
 #: Every family with small parameters (fast), and whether it is seeded.
 SMALL = {

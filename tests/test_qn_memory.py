@@ -10,10 +10,10 @@ import pandas as pd
 import pytest
 
 import lcpbench
+from lcpbench import SecantMemory
 from lcpbench.cli import main
 from lcpbench.problems.suspension.contacts import Contacts
 from lcpbench.problems.suspension.scene import LatticeScene
-from lcpbench import SecantMemory
 
 
 def _spd(n: int, cond: float, seed: int) -> np.ndarray:
@@ -84,9 +84,9 @@ def test_scene_carries_its_memory_by_pair_identity():
     old_row = {tuple(p): k for k, p in enumerate(old_pairs.tolist())}
     S_full = np.zeros((problem.contacts.n, memory.rank))
     Y_full = np.zeros_like(S_full)
-    for l, p in enumerate(problem.contacts.pairs.tolist()):
+    for k, p in enumerate(problem.contacts.pairs.tolist()):
         if tuple(p) in old_row:
-            S_full[l], Y_full[l] = memory.S[old_row[tuple(p)]], memory.Y[old_row[tuple(p)]]
+            S_full[k], Y_full[k] = memory.S[old_row[tuple(p)]], memory.Y[old_row[tuple(p)]]
     # the carried pairs are those columns, oldest first (some may be dropped)
     cols = [next(k for k in range(memory.rank) if np.array_equal(S_full[:, k], carried.S[:, j])
                  and np.array_equal(Y_full[:, k], carried.Y[:, j]))

@@ -10,8 +10,8 @@ import pytest
 
 import lcpbench
 from lcpbench.core.registry import get_problem, get_solver
-from lcpbench.core.specs import make_params
 from lcpbench.core.result import Status
+from lcpbench.core.specs import make_params
 
 REFERENCE = ("clarabel", "proxqp", "osqp")
 
@@ -101,8 +101,7 @@ def test_backend_failure_is_failed(monkeypatch):
 
 
 def test_refine_rescues_singular_active_set():
-    from lcpbench.toolkit.qp import polish_active_set, solve_nonneg_qp
-    from lcpbench.toolkit.qp import refine_active_set
+    from lcpbench.toolkit.qp import polish_active_set, refine_active_set, solve_nonneg_qp
 
     for lcp in generate("singular-psd"):
         A, b = lcp.dense(), lcp.b

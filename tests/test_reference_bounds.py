@@ -20,7 +20,6 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
-
 import qpsolvers  # noqa: F401 - imported once here, not inside the timed solves
 
 import lcpbench

@@ -142,8 +142,7 @@ def test_a_pgd_on_a_zero_matrix():
 def test_the_windows_of_known_directions_shrink_for_large_n():
     from scipy.sparse.linalg import LinearOperator
 
-    from lcpbench.core.context import (RECENT_ITERATES, WINDOW_FLOATS, Budget, Monitor,
-                                       SolverContext)
+    from lcpbench.core.context import RECENT_ITERATES, WINDOW_FLOATS, Budget, Monitor, SolverContext
     from lcpbench.core.residuals import make_stop_rule
 
     n = WINDOW_FLOATS // 10
@@ -159,8 +158,8 @@ def test_the_windows_of_known_directions_shrink_for_large_n():
 
 
 def test_reference_of_an_inexact_operator_is_symmetrised_and_says_how_much():
-    from lcpbench.problems.inexact import exact_product, inexact_lcp
     from lcpbench.core.context import accuracy_floor
+    from lcpbench.problems.inexact import exact_product, inexact_lcp
 
     lcp = inexact_lcp(np.random.default_rng(1), 40, 1e-6)
     ref = lcpbench.reference(lcp)

@@ -4,9 +4,9 @@ timeout rows with their time, history without duplicate blocks."""
 import time
 from types import SimpleNamespace
 
+import misbehave_plugin  # noqa: F401  (registers test-misbehave)
 import pandas as pd
 
-import misbehave_plugin  # noqa: F401  (registers test-misbehave)
 from lcpbench.cli import main
 from lcpbench.run import executors, runner
 from lcpbench.run.runner import execute, plan

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import re
-import tomllib
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +15,11 @@ from lcpbench.report.render import render_report
 from lcpbench.run.runner import execute, plan
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # Python 3.10
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 

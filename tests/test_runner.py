@@ -4,15 +4,14 @@ import dataclasses
 import json
 import re
 
+import misbehave_plugin  # noqa: F401  (registers test-misbehave)
 import pandas as pd
 import pytest
 
-import misbehave_plugin  # noqa: F401  (registers test-misbehave)
 from lcpbench.run import executors
+from lcpbench.run.runner import execute, plan
 from lcpbench.run.store import HISTORY_STORE_COLUMNS, RESULT_COLUMNS, RunStore
 from lcpbench.run.sweep import Sweep, expand
-from lcpbench.run.runner import execute, plan
-
 
 SMALL = "fathi:sizes=[4,6]"
 
@@ -86,10 +85,10 @@ def test_multifidelity_solvers_skip_instances_without_low():
 
 
 def test_bi_pqn_without_a_named_low_runs_once_per_low_operator(tmp_path):
+    from lcp_cases import planted
+
     from lcpbench import LCP, register_problem
     from lcpbench.problems.random import with_perturbed_lows
-
-    from lcp_cases import planted
 
     @dataclasses.dataclass(frozen=True)
     class TwoLowParams:

@@ -9,15 +9,19 @@ import pandas as pd
 import pytest
 import scipy.sparse as sp
 
-from lcpbench.core.api import run_solver
 from lcpbench.cli import main
-from lcpbench.problems.suspension.contacts import (
-    Contacts, build_contact_problem, contact_lcp, max_overlap, parse_fidelity)
-from lcpbench.problems.suspension.scene import (
-    LatticeParams, LatticeScene, bisect_scale)
+from lcpbench.core.api import run_solver
 from lcpbench.core.registry import make_scene
-from lcpbench.workflows.simulate import simulate
+from lcpbench.problems.suspension.contacts import (
+    Contacts,
+    build_contact_problem,
+    contact_lcp,
+    max_overlap,
+    parse_fidelity,
+)
+from lcpbench.problems.suspension.scene import LatticeParams, LatticeScene, bisect_scale
 from lcpbench.report.tables import online_table
+from lcpbench.workflows.simulate import simulate
 
 
 def _has_rpy() -> bool:
@@ -306,8 +310,8 @@ def test_scene_warm_start_carries_forces_by_pair_identity():
     prob = scene.build(warm_start=True)
     x0 = prob.lcp.x0
     assert x0 is not None
-    for l, pair in enumerate(prob.contacts.pairs.tolist()):
-        assert x0[l] == pytest.approx(prev.get(tuple(pair), 0.0))
+    for k, pair in enumerate(prob.contacts.pairs.tolist()):
+        assert x0[k] == pytest.approx(prev.get(tuple(pair), 0.0))
     assert scene.build(warm_start=False).lcp.x0 is None
 
 
@@ -414,9 +418,10 @@ def test_cli_simulate_errors_exit_2(tmp_path, capsys, argv, msg):
 
 
 def test_paper_lattice_keeps_the_authors_gaps():
+    from scipy.spatial.distance import pdist
+
     from lcpbench.core.registry import make_scene
     from lcpbench.problems.suspension.scene import LatticeParams, PaperLatticeParams
-    from scipy.spatial.distance import pdist
 
     scene = make_scene("paper-lattice:m=3,model=rpy")
     P = scene.params

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lcpbench import SolveResult, SolverContext, Status, register_solver
+from lcpbench import SolverContext, SolveResult, Status, register_solver
 from lcpbench.toolkit.steps import exact_step
 
 

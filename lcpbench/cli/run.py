@@ -18,18 +18,17 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from lcpbench.cli.options import add_stop_options
 from lcpbench.core import guards
 from lcpbench.core.api import requested_lows
+from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
-from lcpbench.core.registry import get_solver
 from lcpbench.core.defaults import BASELINE_SOLVER
-from lcpbench.cli.options import add_stop_options
+from lcpbench.core.registry import get_solver
 from lcpbench.report.render import render_report, stderr_progress
-from lcpbench.run.runner import (Plan, describe_counts, execute, git_commit,
-                                  machine_info, plan)
+from lcpbench.run.runner import Plan, describe_counts, execute, git_commit, machine_info, plan
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep, estimate_sweep, load_config
-from lcpbench.core.clock import utc_now
 
 __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep",
            "check_plan", "check_out_dir", "check_not_foreign"]

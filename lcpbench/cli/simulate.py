@@ -45,8 +45,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from lcpbench.cli.run import check_not_foreign
-    from lcpbench.workflows.simulate import (DEFAULT_OVERLAP_TOL, DEFAULT_QN_MEMORY,
-                                             Interrupted, simulate)
+    from lcpbench.workflows.simulate import (
+        DEFAULT_OVERLAP_TOL,
+        DEFAULT_QN_MEMORY,
+        Interrupted,
+        simulate,
+    )
 
     out = Path(args.out) if args.out else \
         Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"

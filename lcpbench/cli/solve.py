@@ -8,8 +8,8 @@ import json
 import sys
 
 from lcpbench.cli.options import add_force_option, add_stop_options, guard_problem
-from lcpbench.core.guards import dense_refusal
 from lcpbench.core.defaults import DEFAULT_SOLVER, EXAMPLE_PROBLEM
+from lcpbench.core.guards import dense_refusal
 from lcpbench.core.registry import get_problem, solvers
 from lcpbench.core.specs import make_params, parse_spec
 

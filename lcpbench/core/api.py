@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import traceback
 import warnings
-from typing import Any, Callable, Optional, Union
+from collections.abc import Callable
+from typing import Any, Optional, Union
 
 import numpy as np
 import scipy.sparse as sp
@@ -13,14 +14,14 @@ from scipy.sparse.linalg import LinearOperator
 from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.deadline import Deadline
+from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.guards import dense_refusal
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
 from lcpbench.core.registry import get_solver
-from lcpbench.core.specs import make_params, parse_spec
-from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.core.specs import make_params, parse_spec
 
 __all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
@@ -353,8 +354,8 @@ def _misspelt_keywords(solver: str, params: dict) -> None:
 
     ``tolerance=1e-6`` is a misspelt ``tol``, not an unknown solver parameter.
     """
-    import difflib
     import dataclasses
+    import difflib
 
     if not params or not isinstance(solver, str):
         return

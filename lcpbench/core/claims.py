@@ -163,7 +163,7 @@ def _span_candidate(ctx: SolverContext, D: np.ndarray, Y: np.ndarray,
     Q = Qt[near].T if near.any() else Qt[-1:].T
     N = U @ Q
     if Q.shape[1] == 1:
-        y = np.array([-1.0 if float(ctx.b @ N[:, 0]) > 0.0 else 1.0])
+        y: Optional[np.ndarray] = np.array([-1.0 if float(ctx.b @ N[:, 0]) > 0.0 else 1.0])
     else:
         y = _nonnegative_combination(N, ctx.b, np.any(D != 0.0, axis=1))
         if y is None:

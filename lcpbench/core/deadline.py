@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import signal
 import threading
-from typing import Optional
+from typing import Any, Optional
 
 from lcpbench.core.operator import BudgetExhausted
 
@@ -44,13 +44,13 @@ class Deadline:
     def __init__(self, seconds: Optional[float]):
         self.seconds = seconds
         self.armed = False
-        self._old_handler = None
+        self._old_handler: Any = None   # what signal.signal returned
 
     def _fire(self, signum, frame) -> None:
         raise BudgetExhausted(f"time budget of {self.seconds:g} s exhausted (inside the solver's "
                               "own computation)", kind="time")
 
-    def __enter__(self) -> "Deadline":
+    def __enter__(self) -> Deadline:
         if self.seconds is None or not hasattr(signal, "setitimer") \
                 or threading.current_thread() is not threading.main_thread() \
                 or signal.getitimer(signal.ITIMER_REAL)[0] > 0:

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional
+from typing import Any, Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -179,7 +180,7 @@ class LCP:
         """Number of contacts (unknowns)."""
         return int(self.A.shape[0])
 
-    def fresh(self) -> "LCP":
+    def fresh(self) -> LCP:
         """A copy whose operators share the matrices but have zeroed counters."""
         new = object.__new__(LCP)
         new.__dict__.update(self.__dict__)

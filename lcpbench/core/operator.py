@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import contextlib
 import time
-from typing import Callable, ContextManager, Optional
+from collections.abc import Callable
+from typing import Any, Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -97,6 +98,10 @@ class Operator(LinearOperator):
     makes one per solve so that solves never share counts.
     """
 
+    _impl: Any                      # ndarray, sparse matrix or LinearOperator
+    _declared_cost: Optional[float]
+    _explicit: bool
+
     def __init__(self, A, shape: Optional[tuple] = None, *, cost: Optional[float] = None,
                  name: str = "high", dtype=np.float64, rtol: Optional[float] = None):
         if isinstance(A, Operator):
@@ -159,7 +164,7 @@ class Operator(LinearOperator):
         self.seconds = 0.0
         self.calls = 0
         self.nonfinite_at: Optional[int] = None
-        self._guard: Optional[Callable[["Operator", int], None]] = None
+        self._guard: Optional[Callable[[Operator, int], None]] = None
 
     # ------------------------------------------------------------------ counting
     def _apply(self, X: np.ndarray) -> np.ndarray:
@@ -232,7 +237,7 @@ class Operator(LinearOperator):
         """Seconds per MVP: declared if given, else measured (None if unknown)."""
         return self._declared_cost if self._declared_cost is not None else self.measured_cost
 
-    def copy(self, name: Optional[str] = None) -> "Operator":
+    def copy(self, name: Optional[str] = None) -> Operator:
         """A new operator on the same matrix and declared cost, with zeroed counters."""
         op = Operator(self, name=self.name if name is None else name)
         return op
@@ -243,7 +248,7 @@ class Operator(LinearOperator):
                 f"count={self.count}, cost={self.cost}>")
 
 
-def _checked_apply(op: "Operator", X: np.ndarray) -> np.ndarray:
+def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:
     """``_raw_apply`` that names the operator when its code raises or answers with a wrong shape."""
     try:
         Y = _raw_apply(op._impl, X)
@@ -305,7 +310,7 @@ def as_operator(A, *, name: str = "high", cost: Optional[float] = None) -> Opera
 
 
 def measure_cost(op: Operator, min_seconds: float = 0.02, max_reps: int = 50,
-                 cold: Optional[Callable[[], ContextManager]] = None) -> float:
+                 cold: Optional[Callable[[], contextlib.AbstractContextManager]] = None) -> float:
     """Seconds per product of ``op``, timed on uncounted products with positive vectors.
 
     Repeats cheap products until ``min_seconds`` of products have passed (or ``max_reps``),

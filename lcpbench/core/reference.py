@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Any, Optional
 
 import numpy as np
 
 from lcpbench.core.lcp import LCP
-from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 from lcpbench.core.residuals import kkt_abs, objective
+from lcpbench.toolkit.qp import QPTimeout, solve_and_refine
 
 __all__ = ["Reference", "reference", "AGREE_RTOL", "default_reference_seconds",
            "REFERENCE_BASE_SECONDS", "REFERENCE_SECONDS_PER_GIGAFLOP"]
@@ -104,7 +105,8 @@ def reference_without(ref: dict, name: str) -> Optional[tuple[np.ndarray, np.nda
 
 
 def _rel(w1: np.ndarray, w2: np.ndarray) -> float:
-    return float(np.linalg.norm(w1 - w2) / max(1.0, np.linalg.norm(w1), np.linalg.norm(w2)))
+    scale = max(1.0, float(np.linalg.norm(w1)), float(np.linalg.norm(w2)))
+    return float(np.linalg.norm(w1 - w2)) / scale
 
 
 def _backend_answer(A: np.ndarray, b: np.ndarray, name: str, tol: float, polish: bool,
@@ -172,8 +174,8 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
     if n == 0:
         z = np.zeros(0)
         return Reference(z, z, 0.0, True, list(backends), 0.0, 0.0)
-    sols = {}
-    details = {}
+    sols: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
+    details: dict[str, Any] = {}
     if lcp.A.rtol is not None:
         scale = float(np.max(np.abs(A)))
         details["asymmetry"] = float(np.max(np.abs(A - A.T))) / scale if scale > 0 else 0.0
@@ -187,7 +189,7 @@ def reference(lcp: LCP, backends: Sequence[str] = ("clarabel", "proxqp", "osqp")
                            + "; ".join(details[nm]["message"] for nm in backends))
     names = list(sols)
     best_group, best_spread = [names[0]], float("inf")
-    for i, a in enumerate(names):
+    for a in names:
         group = [a] + [c for c in names if c != a and _rel(sols[a][1], sols[c][1]) <= rtol]
         spread = max((_rel(sols[p][1], sols[q][1]) for p in group for q in group if p < q),
                      default=float("inf"))

@@ -23,7 +23,9 @@ __all__ = ["split_top_level", "parse_spec", "make_params", "describe_params", "B
 
 def split_top_level(text: str, sep: str = ",") -> list[str]:
     """Split on ``sep`` outside brackets: ``"a=1,b=[x,y]"`` -> ``["a=1", "b=[x,y]"]``."""
-    out, depth, cur = [], 0, []
+    out: list[str] = []
+    cur: list[str] = []
+    depth = 0
     for ch in text:
         if ch in "[(":
             depth += 1
@@ -274,7 +276,7 @@ def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
                      if v})
     out = []
     for f in dataclasses.fields(cls):
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
         tp = hints[f.name]
         if typing.get_origin(tp) is typing.Literal:
             tname = "one of " + "|".join(str(c) for c in typing.get_args(tp))

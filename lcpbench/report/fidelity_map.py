@@ -53,7 +53,7 @@ def fidelity_map_table(results: pd.DataFrame) -> pd.DataFrame:
                          err_key=np.where(synthetic, multi["rel_error"], np.nan))
     rows = []
     for (prob, solver, shape), g in multi.groupby(["problem", "solver_name", "shape"]):
-        for key, h in (g.groupby("err_key") if g["err_key"].notna().any() else [(None, g)]):
+        for _key, h in (g.groupby("err_key") if g["err_key"].notna().any() else [(None, g)]):
             e = float(h["emvps"].median())
             rows.append({"problem": prob, "solver": solver, "low": shape,
                          "rel_error": float(h["rel_error"].median()),
@@ -77,7 +77,7 @@ def _figure_svg(table: pd.DataFrame, column: str, ylabel: str,
         ax.plot(g["rel_error"], g[column], style, ms=8 if style == "*" else 4,
                 color=palette.get(str(solver)), label=f"{prob} {solver} {low}")
     if column == "emvps" and table["best_single_fidelity"].notna().any():
-        for prob, g in table.groupby("problem"):
+        for _prob, g in table.groupby("problem"):
             ax.axhline(float(g["best_single_fidelity"].iloc[0]), ls=":", color="grey", lw=1)
     ax.set_xscale("log")
     ax.invert_xaxis()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import re
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -25,7 +26,7 @@ WIDTH = 9.0
 LEGEND_PT = 8.5
 #: The report's matplotlib style. ``svg.fonttype`` ``none``: text stays text in the SVG
 #: (searchable, smaller, sized by the browser).
-STYLE = {"svg.hashsalt": "lcpbench", "font.size": 9, "svg.fonttype": "none",
+STYLE: Any = {"svg.hashsalt": "lcpbench", "font.size": 9, "svg.fonttype": "none",
          "legend.fontsize": LEGEND_PT}
 
 

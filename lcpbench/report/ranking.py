@@ -20,6 +20,8 @@ Conventions (also stated on the page):
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pandas as pd
 
@@ -111,7 +113,7 @@ def penalty(part: pd.DataFrame, metric: str, meta: dict | None = None) -> float:
     else:
         budget = meta.get("timeout")
     try:
-        budget = float(budget)
+        budget = float(budget)  # type: ignore[arg-type]   # None or text: no budget
     except (TypeError, ValueError):
         budget = np.nan
     if np.isfinite(budget) and budget > 0:
@@ -172,7 +174,8 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
     for solver, g in cut.groupby("solver", sort=True):
         ok_mask = truthy(g["solved"])
         multi = bool(truthy(g["multifidelity"]).any())
-        row = {"solver": str(solver), "solved": f"{int(ok_mask.sum())}/{len(g)}",
+        row: dict[str, Any] = {"solver": str(solver),
+                               "solved": f"{int(ok_mask.sum())}/{len(g)}",
                "success": f"{100.0 * ok_mask.mean():.0f} %"}
         row.update(_stats(g[ok_mask], multi))
         row[f"median / {baseline}"] = (_both_solved_ratio(g, base) if len(base)
@@ -213,7 +216,7 @@ def references_table(results: pd.DataFrame) -> pd.DataFrame:
     for (problem, solver), g in ref.groupby(["problem", "solver"], sort=True):
         name = str(g["solver_name"].iloc[0]) if "solver_name" in g else str(solver)
         members = g.get("ref_solvers", pd.Series("", index=g.index)).fillna("").astype(str)
-        inside = members.map(lambda s: name in [x.strip() for x in s.split(",")])
+        inside = members.map(lambda s, name=name: name in [x.strip() for x in s.split(",")])
         err = pd.to_numeric(g["ref_err_w"], errors="coerce") if "ref_err_w" in g \
             else pd.Series(np.nan, index=g.index)
         if "ref_err_w_others" in g:          # leave one out: against the other backends

@@ -104,7 +104,7 @@ def paper_tables(results: pd.DataFrame, baseline: str = BASELINE_SOLVER,
     from lcpbench.report.ranking import common_ground, ranked_runs, ranking_table
 
     off = ranked_runs(results, "emvps")
-    out = {}
+    out: dict = {}
     if off.empty:
         return out
     for problem, part in off.groupby("problem", sort=True):
@@ -245,7 +245,7 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
         finite = ratio.to_numpy()[np.isfinite(ratio.to_numpy())]
         top = max(2.0, 1.05 * float(finite.max())) if finite.size else 2.0
         taus = np.geomspace(1.0, top, 61)
-    out = {"tau": taus}
+    out: dict = {"tau": taus}
     given = {}
     for s in sorted(piv.columns):
         made = piv[s].notna().to_numpy()
@@ -433,7 +433,7 @@ def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
     if len(set(labels.values())) < len(labels):      # two scenes of one size: keep them apart
         labels = {p: f"{lab} ({p})" if sides[p] is not None else lab for p, lab in labels.items()}
     cut["size"] = cut["problem"].map(labels)
-    cut["M"] = cut["problem"].map(lambda p: float(sides[p] ** 3) if sides[p] is not None
+    cut["M"] = cut["problem"].map(lambda p: float(m ** 3) if (m := sides[p]) is not None
                                   else np.nan)
     order = {p: i for i, p in enumerate(_scene_order(on))}
     cut["_o"] = cut["problem"].map(order)
@@ -513,8 +513,8 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
                 continue
             mine = sums.get(s)
             for j, what in ((0, "total"), (1, "collision")):
-                ok = base is not None and mine is not None and mine[j] > 0
-                row[f"{s} {what} speedup"] = base[j] / mine[j] if ok else np.nan
+                row[f"{s} {what} speedup"] = (base[j] / mine[j] if base is not None
+                                              and mine is not None and mine[j] > 0 else np.nan)
         for s in solvers:
             g = part[part["solver"] == s]
             for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs")):

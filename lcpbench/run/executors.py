@@ -25,7 +25,8 @@ import pickle
 import select
 import signal
 import time
-from typing import Callable, Optional
+from collections.abc import Callable
+from typing import Optional
 
 from lcpbench.run.store import DIED_PREFIX
 
@@ -69,7 +70,7 @@ class ForkedCall:
         self.pid, self.fd = pid, r
         self.chunks: list[bytes] = []
         self.done = False
-        self.result = None
+        self.result: Optional[tuple[str, object]] = None
 
     def poll(self, wait: float = 0.0) -> bool:
         """Read what the child sent; True once it has finished (or been killed)."""

@@ -25,24 +25,24 @@ import json
 import os
 import platform
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Any, Optional
 
 import numpy as np
 import pandas as pd
 
 from lcpbench.core.api import run_solver
+from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
 from lcpbench.core.lcp import LCP
-from lcpbench.core.reference import default_reference_seconds
+from lcpbench.core.reference import default_reference_seconds, reference_without
 from lcpbench.core.reference import reference as consensus_reference
-from lcpbench.core.reference import reference_without
 from lcpbench.core.registry import get_problem, get_solver
 from lcpbench.core.specs import make_params
 from lcpbench.run.executors import call_with_deadline
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import RunSpec, Spec, Sweep, per_low
-from lcpbench.core.clock import utc_now
 
 __all__ = ["Plan", "plan", "result_fields", "execute", "perform", "instance_reference", "machine_info"]
 
@@ -227,7 +227,7 @@ def machine_info() -> dict:
     """Package versions, CPU, BLAS and thread settings for ``meta.json``."""
     import importlib.metadata as md
 
-    versions = {}
+    versions: dict[str, Optional[str]] = {}
     for pkg in ("lcpbench", "numpy", "scipy", "pandas", "qpsolvers", "clarabel", "osqp",
                 "proxsuite", "matplotlib"):
         try:
@@ -235,7 +235,7 @@ def machine_info() -> dict:
         except md.PackageNotFoundError:
             versions[pkg] = None
     try:
-        cfg = np.show_config(mode="dicts")
+        cfg: Any = np.show_config(mode="dicts")
         blas = cfg.get("Build Dependencies", {}).get("blas", {})
     except (TypeError, ValueError, AttributeError) as exc:   # numpy without mode="dicts"
         blas = {"unknown": f"{type(exc).__name__}: {exc}"}
@@ -353,6 +353,7 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     def local_work(run: RunSpec):
         return _safe_perform(run, p.lcp(run), ref_of(run), timeout)
 
+    work: Callable[[RunSpec], object]
     if kind == "dask":
         work = partial(remote_work, timeout=timeout, reference_max_n=reference_max_n,
                        reference_timeout=reference_timeout)

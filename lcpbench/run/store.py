@@ -35,8 +35,9 @@ import json
 import os
 import time
 import zlib
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Optional
+from typing import Optional
 
 import numpy as np
 import pandas as pd
@@ -107,7 +108,7 @@ class RunLock:
         self.repair = repair
         self.fd: Optional[int] = None
 
-    def __enter__(self) -> "RunLock":
+    def __enter__(self) -> RunLock:
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         deadline = time.monotonic() + self.REPAIR_WAIT_S
         while True:
@@ -219,17 +220,17 @@ class _Scan:
 
     def _mark(self, i: int, reason: str) -> None:
         self.ok[i] = False
-        self.bad.append((i + 1, reason, self.line(i)))
+        self.bad.append((i + 1, reason, self.line(int(i))))
 
     def _tail(self, i: int) -> bool:
         return i == self.starts.size - 1 and not self.terminated
 
     def _check_sums(self) -> None:
         for i in range(1, self.starts.size):
-            body, _, mark = self.line(i).rpartition(",")
+            body, _, mark = self.line(int(i)).rpartition(",")
             if not (body and mark == _crc(body)):
                 why = "checksum mismatch (a cut, merged or edited row)"
-                self._mark(i, f"last line cut short (no newline; {why})" if self._tail(i)
+                self._mark(int(i), f"last line cut short (no newline; {why})" if self._tail(int(i))
                            else why)
 
     def _count_fields(self, arr: np.ndarray, count: int,
@@ -241,19 +242,19 @@ class _Scan:
         ok = per_line(",") + 1 == count
         quoted = per_line('"') > 0
         for i in np.flatnonzero(quoted):
-            ok[i] = _fields(self.line(i), count)
+            ok[i] = _fields(self.line(int(i)), count)
         last = self.starts.size - 1
         tail_ok = bool(ok[last]) and keep_tail is not None and keep_tail(self.line(last))
         for i in np.flatnonzero(~ok[1:]) + 1:
-            if not self._tail(i):
-                self._mark(i, f"not {count} fields")
+            if not self._tail(int(i)):
+                self._mark(int(i), f"not {count} fields")
         if last > 0 and not self.terminated and not tail_ok:
             self._mark(last, "last line cut short (no newline, and no checksum to show it "
                              "is whole)")
 
     def good_lines(self) -> list[str]:
         """The header and the good lines, in file order, without newlines."""
-        return [self.line(i) for i in np.flatnonzero(self.ok)]
+        return [self.line(int(i)) for i in np.flatnonzero(self.ok)]
 
     def text(self) -> str:
         """The good lines as a file (each with its newline)."""

@@ -31,14 +31,14 @@ import json
 import math
 import sys
 import typing
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Optional
+from typing import Any, Optional
 
 from lcpbench.core import guards
-from lcpbench.core.registry import (get_problem, get_solver, problem_estimate, problems,
-                                    solvers)
-from lcpbench.core.specs import make_params, parse_spec, split_top_level
+from lcpbench.core.registry import get_problem, get_solver, problem_estimate, problems, solvers
 from lcpbench.core.residuals import STOP_RULES
+from lcpbench.core.specs import make_params, parse_spec, split_top_level
 
 __all__ = ["Spec", "RunSpec", "Sweep", "expand", "per_low", "load_config", "default_sweep",
            "spec_count", "SweepEstimate", "estimate_sweep"]
@@ -259,7 +259,10 @@ _CONFIG_KEYS = {"solvers", "problems", "tol", "stop", "repeat", "seed", "timeout
 
 def load_config(path: str) -> dict:
     """Read a sweep TOML file into keyword arguments of :class:`Sweep`."""
-    import tomllib
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:   # Python 3.10: tomli is the package tomllib was taken from
+        import tomli as tomllib
 
     try:
         with open(path, "rb") as fh:

@@ -5,8 +5,17 @@ the cost convention. Problem plugins read sets with :func:`read_set`; ``lcpbench
 writes them with :class:`SetWriter`.
 """
 
-from lcpbench.sets.common import (COST_CONVENTION, FORMAT, READ_BUDGET, VERSION, StoredSetError,
-                                  human_bytes, parse_instances, read_budget, set_problem_name)
+from lcpbench.sets.common import (
+                                  COST_CONVENTION,
+                                  FORMAT,
+                                  READ_BUDGET,
+                                  VERSION,
+                                  StoredSetError,
+                                  human_bytes,
+                                  parse_instances,
+                                  read_budget,
+                                  set_problem_name,
+)
 from lcpbench.sets.read import instance_ids, read_instance, read_set, set_info
 from lcpbench.sets.write import SetWriter
 

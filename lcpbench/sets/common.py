@@ -174,7 +174,7 @@ def _digest(arr: np.ndarray) -> str:
         a = a.astype(a.dtype.newbyteorder("<"))
     h = hashlib.sha256()
     h.update(f"{a.dtype.str}:{a.shape}".encode())
-    h.update(a)
+    h.update(a.data)
     return h.hexdigest()
 
 

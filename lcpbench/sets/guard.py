@@ -14,7 +14,7 @@ from typing import Any, Optional
 import h5py
 import numpy as np
 
-from lcpbench.sets.common import (READ_BUDGET_ENV, PathLike, StoredSetError, _err, human_bytes)
+from lcpbench.sets.common import READ_BUDGET_ENV, PathLike, StoredSetError, _err, human_bytes
 
 __all__ = ["Where", "ReadBudget", "check_links", "hard_child", "dataset_bytes", "read_attrs",
            "want_int", "want_float", "want_bool", "want_str", "want_str_list", "want_sha"]

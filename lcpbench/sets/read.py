@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable, Optional
+from typing import Optional
 
 import h5py
 import numpy as np
@@ -18,11 +19,31 @@ import numpy as np
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import Operator
 from lcpbench.core.registry import stored_sets
-from lcpbench.sets.common import (_INCOMPLETE, _INSTANCES, _SHA, FORMAT, VERSION, PathLike,
-                                  StoredSetError, _digest, _err, read_budget)
-from lcpbench.sets.guard import (ReadBudget, Where, check_links, dataset_bytes, hard_child,
-                                 read_attrs, want_bool, want_float, want_int, want_sha,
-                                 want_str, want_str_list)
+from lcpbench.sets.common import (
+    _INCOMPLETE,
+    _INSTANCES,
+    _SHA,
+    FORMAT,
+    VERSION,
+    PathLike,
+    StoredSetError,
+    _digest,
+    _err,
+    read_budget,
+)
+from lcpbench.sets.guard import (
+    ReadBudget,
+    Where,
+    check_links,
+    dataset_bytes,
+    hard_child,
+    read_attrs,
+    want_bool,
+    want_float,
+    want_int,
+    want_sha,
+    want_str_list,
+)
 
 __all__ = ["read_set", "read_instance", "set_info", "instance_ids"]
 

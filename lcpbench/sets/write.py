@@ -21,18 +21,29 @@ import os
 import secrets
 import stat
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping, Optional, Union
+from typing import Any, Optional, Union
 
 import h5py
 import numpy as np
 
+from lcpbench.core.clock import utc_now
 from lcpbench.core.operator import Operator, dense_uncounted
 from lcpbench.core.reference import Reference
-from lcpbench.sets.common import (_ID_RE, _INCOMPLETE, _INSTANCES, _SHA, COST_CONVENTION, FORMAT,
-                                  VERSION, PathLike, StoredSetError, _digest)
+from lcpbench.sets.common import (
+    _ID_RE,
+    _INCOMPLETE,
+    _INSTANCES,
+    _SHA,
+    COST_CONVENTION,
+    FORMAT,
+    VERSION,
+    PathLike,
+    StoredSetError,
+    _digest,
+)
 from lcpbench.sets.read import _check_root
-from lcpbench.core.clock import utc_now
 
 __all__ = ["SetWriter"]
 
@@ -253,14 +264,14 @@ class SetWriter:
         self._target = self.path
 
     # -------------------------------------------------------------- context
-    def __enter__(self) -> "SetWriter":
+    def __enter__(self) -> SetWriter:
         self.open()
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
         self.close(save=exc_type is None)
 
-    def open(self) -> "SetWriter":
+    def open(self) -> SetWriter:
         """Lock the file, load (or create) it, check it and clean up what killed writers left."""
         if self._f is not None:
             return self
@@ -338,7 +349,7 @@ class SetWriter:
 
     def _prepare(self) -> bool:
         """Root attributes and groups of a new set, stale groups removed; True if changed."""
-        f = self._f
+        f = self.file
         changed = "format" not in f.attrs or _INSTANCES not in f or _INCOMPLETE in f
         if "format" not in f.attrs:
             from lcpbench import __version__
@@ -362,7 +373,8 @@ class SetWriter:
     def _image(self) -> bytes:
         """The image as it stands (a copy: no view of the buffer outlives this call, so the
         HDF5 library can always go on writing to it)."""
-        self._f.flush()
+        self.file.flush()
+        assert self._buf is not None             # set with the file by open()
         return self._buf.getvalue()
 
     def _save(self, what: str, instance: Optional[str] = None, *, changed: bool = False) -> None:
@@ -462,7 +474,7 @@ class SetWriter:
 
     def _collect(self, iid: str, A, b, *, low, x0, reference, attrs) -> tuple:
         """Check and convert the arguments of :meth:`write_instance` (nothing is written)."""
-        self.file                                   # raises when closed
+        _ = self.file                               # raises when closed
         if not _ID_RE.match(iid):
             raise ValueError(f"instance id {iid!r}: use letters, digits and _.+=- only "
                              "(it becomes an HDF5 group name)")

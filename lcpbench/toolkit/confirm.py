@@ -118,11 +118,11 @@ class ConfirmedReport:
         if confirmed:
             self.refuted += 1
             if self.refuted >= self.max_refuted:
-                exact = float(np.linalg.norm(np.minimum(z, G)))
+                residual = float(np.linalg.norm(np.minimum(z, G)))
                 self.ctx.status = Status.stagnated
                 self.ctx.message = (
                     f"the gradient recurrence met the threshold {thr:.3g} {self.refuted} times "
-                    f"but the exact residual did not (last {exact:.3g}): the tolerance is below "
+                    f"but the exact residual did not (last {residual:.3g}): the tolerance is below "
                     "the precision attainable for this b; loosen tol or use stop='kkt'")
                 return True
         return False

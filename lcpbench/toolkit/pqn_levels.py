@@ -23,8 +23,9 @@ no product is ever repeated to rebuild a model.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Callable, Literal, Optional
+from typing import Annotated, Literal, Optional
 
 import numpy as np
 
@@ -57,7 +58,7 @@ class Pairs:
         if memory and len(self.S) > memory:
             del self.S[:-memory], self.Y[:-memory], self.B0S[:-memory]
 
-    def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> "Pairs":
+    def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> Pairs:
         """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept)."""
         return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
                      list(self.B0S))

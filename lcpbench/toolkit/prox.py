@@ -33,6 +33,7 @@ prox is the closed form ``max(y, 0)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Union
 
 import numpy as np
 
@@ -86,7 +87,7 @@ def _c_inverse(d: np.ndarray, U: np.ndarray):
     return apply
 
 
-def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
+def weighted_prox(y: np.ndarray, d: Union[float, np.ndarray], U: np.ndarray, V: np.ndarray, *,
                   tol: float = 1e-12, max_iter: int = 100,
                   fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
     """``argmin_{z >= 0} 1/2 (z - y)' (D + U U' - V V') (z - y)``.
@@ -115,7 +116,7 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
     info : ProxInfo
     """
     with one_blas_thread():       # rank-sized systems: threads cost more than they give
-        return _weighted_prox(y, d, U, V, tol=tol, max_iter=max_iter,
+        return _weighted_prox(y, np.asarray(d, dtype=np.float64), U, V, tol=tol, max_iter=max_iter,
                               fallback_iters=fallback_iters)
 
 

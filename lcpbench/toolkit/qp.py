@@ -169,8 +169,9 @@ def _solve_here(A: np.ndarray, b: np.ndarray, backend: str, tol: float,
 
     name, opts = QP_BACKENDS[backend]
     options = opts(tol)
-    if max_seconds is not None and TIME_LIMIT_OPTION[backend]:
-        options[TIME_LIMIT_OPTION[backend]] = OWN_LIMIT_SHARE * max_seconds
+    own = TIME_LIMIT_OPTION[backend]
+    if max_seconds is not None and own is not None:
+        options[own] = OWN_LIMIT_SHARE * max_seconds
     n = A.shape[0]
     P = sp.csc_matrix(A) if name in ("clarabel", "osqp") else A
     prob = Problem(P=P, q=np.asarray(b, dtype=np.float64), lb=np.zeros(n))
@@ -282,9 +283,9 @@ def solve_and_refine(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e
     """
     deadline = None if max_seconds is None else time.monotonic() + max_seconds
     for attempt in range(retries + 1):
-        limit = {} if deadline is None else {"max_seconds": deadline - time.monotonic()}
+        limit = None if deadline is None else deadline - time.monotonic()
         try:
-            x, message = solve_nonneg_qp(A, b, backend, tol, **limit)
+            x, message = solve_nonneg_qp(A, b, backend, tol, max_seconds=limit)
         except (QPTimeout, BudgetExhausted):   # out of time: no retry, the caller decides
             raise
         except Exception as exc:  # a backend crash is a failed solve, not a crash

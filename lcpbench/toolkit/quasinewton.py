@@ -22,7 +22,8 @@ skipped, as in the authors' code, so ``B`` stays positive definite whenever
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+from collections.abc import Callable
+from typing import Optional
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class SecantMemory:
         self.S, self.Y = S, Y
 
     @classmethod
-    def from_pairs(cls, S: list, Y: list, n: int) -> "SecantMemory":
+    def from_pairs(cls, S: list, Y: list, n: int) -> SecantMemory:
         """The memory of lists of pair vectors (oldest first) of length ``n``."""
         if not S:
             return cls(np.zeros((n, 0)), np.zeros((n, 0)))
@@ -114,7 +115,7 @@ class SecantMemory:
                              "(SecantMemory.remap) or pass state=None")
 
     def remap(self, index, min_kept: float = 0.5,
-              curvature_tol: float = 1e-12) -> "SecantMemory":
+              curvature_tol: float = 1e-12) -> SecantMemory:
         """The pairs moved to another LCP's unknowns, row ``l`` taken from old row ``index[l]``.
 
         Made for a changed contact set: ``index[l]`` is the previous position of

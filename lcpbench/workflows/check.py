@@ -37,15 +37,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 
 from lcpbench import __version__
+from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
 from lcpbench.core.operator import apply_uncounted
-from lcpbench.core.clock import utc_now
 from lcpbench.core.registry import get_solver, solvers, stored_sets
 from lcpbench.core.residuals import make_stop_rule
 from lcpbench.core.specs import make_params, parse_spec
@@ -188,7 +189,7 @@ def resolve_sets(names: Optional[Sequence[str]] = None) -> dict[str, Path]:
 
 def default_specs(low_names: Sequence[str]) -> list[str]:
     """Every MVP-only, non-reference solver with its defaults, for a set with ``low_names``."""
-    specs = []
+    specs: list[str] = []
     for name, info in solvers().items():
         if not info.listed or info.reference or not info.mvp_only:
             continue
@@ -247,9 +248,8 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     """
     from tqdm.auto import tqdm
 
-    from lcpbench.sets import read_set
-
     from lcpbench.core.api import run_solver
+    from lcpbench.sets import read_set
 
     path = Path(baseline) if baseline else default_baseline()
     make_stop_rule("paper", tol)                # bad values before any set is read

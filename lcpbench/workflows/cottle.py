@@ -241,7 +241,7 @@ def _cottle_bounds(A: np.ndarray, starts, random_starts, seed, iters, polish,
             Z0.append(e)
     rng = np.random.default_rng(seed)
     ridx = rng.integers(0, n, size=random_starts)
-    for i in ridx:
+    for _ in ridx:
         Z0.append(rng.uniform(-1.0, 1.0, size=n))
     all_idx = np.concatenate([idx, ridx]).astype(int)
     sigma = np.ones(all_idx.size)

@@ -39,22 +39,27 @@ import json
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 import pandas as pd
 
 from lcpbench.core.api import requested_lows
+from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
 from lcpbench.core.registry import get_solver
-from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.core.residuals import make_stop_rule
+from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.run.runner import result_fields
 from lcpbench.run.store import RunStore
-from lcpbench.core.clock import utc_now
-from lcpbench.workflows.checkpoint import (Checkpoint, checkpoint_path, load_checkpoint,
-                                           save_checkpoint)
+from lcpbench.workflows.checkpoint import (
+    Checkpoint,
+    checkpoint_path,
+    load_checkpoint,
+    save_checkpoint,
+)
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "DEFAULT_QN_MEMORY", "Interrupted"]
 
@@ -165,7 +170,6 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     from tqdm.auto import tqdm
 
     from lcpbench.core.registry import make_scene
-
     from lcpbench.run.runner import git_commit, machine_info
 
     if isinstance(solver_spec, str):
@@ -191,7 +195,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     store = RunStore(out_dir)
     with store.lock():
         done = store.done_ids()
-        resumed = {}
+        resumed: dict[str, tuple[Path, Optional[Checkpoint]]] = {}
         for s in specs:
             settings = _settings(scene_spec, s, tol, stop, warm_start, qn_memory, max_emvps,
                                  max_seconds, overlap_tol)
@@ -238,12 +242,12 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
             for k, spec in enumerate(specs):
                 scene = probe if spec == specs[0] else make_scene(scene_spec)
                 name, info = infos[spec]
-                path, ckpt = resumed[spec]
+                path, start = resumed[spec]
                 settings = _settings(scene_spec, spec, tol, stop, warm_start, qn_memory,
                                      max_emvps, max_seconds, overlap_tol)
                 sims.append(_one_simulation(
                     store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
-                    qn_memory, tol, stop, budget, overlap_tol, progress, tqdm, path, ckpt,
+                    qn_memory, tol, stop, budget, overlap_tol, progress, tqdm, path, start,
                     settings, _lows_for(spec, info, scene.params.low), k))
             frames = _round_robin(sims)
         except Interrupted:

@@ -78,7 +78,7 @@ import contextlib
 import copy
 import warnings
 import weakref
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
@@ -320,7 +320,7 @@ class BimMobility(TransposedProducts, LinearOperator):
         self.adjoint_iterations: list[int] = []
         self.adjoint_residuals: list[float] = []
 
-    def at_tolerance(self, eps_gmres: float) -> "BimMobility":
+    def at_tolerance(self, eps_gmres: float) -> BimMobility:
         """The same discrete mobility solved to another GMRES tolerance, on this one's set-up.
 
         The twin shares everything that depends only on the configuration and the order

@@ -219,7 +219,7 @@ class PairPlan:
         equal to 4e-16 at eps_gmres 1e-12, same GMRES iterations; ``tests/test_bim.py``).
         It saves 44% of the block memory and multiply-adds at p = 8 (243 rows, not 432):
         measured 0.51-0.58x the time of a 27-sphere product at p = 8 (docs/mobility.md)."""
-        M, N, p = self.M, self.N, self.p
+        M, p = self.M, self.p
         b = self.basis
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)

@@ -54,8 +54,14 @@ import numpy as np
 
 from .bim import BimMobility
 from .bim_adjoint import AdjointPieces
-from .kernels import (PARALLEL_WORK, apply_blocks, apply_blocks_serial, apply_lowrank,
-                      apply_lowrank_serial, dense_rows)
+from .kernels import (
+    PARALLEL_WORK,
+    apply_blocks,
+    apply_blocks_serial,
+    apply_lowrank,
+    apply_lowrank_serial,
+    dense_rows,
+)
 from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
 
 __all__ = ["SplitMobility", "split_mobility", "DEFAULT_NEAR_GAP"]

@@ -35,8 +35,9 @@ slightly asymmetric operator; ``lcp.meta["symmetrized"]`` says which).
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 import scipy.sparse as sp
@@ -91,7 +92,7 @@ class Contacts:
     delta: float
 
     @classmethod
-    def from_configuration(cls, centers, radii, delta: float) -> "Contacts":
+    def from_configuration(cls, centers, radii, delta: float) -> Contacts:
         """Candidate pairs with gap ``<= delta``, their normals, gaps and ``D``.
 
         Parameters
@@ -152,8 +153,8 @@ class Contacts:
         if not self.n or not len(old_pairs):
             return out
         lookup = {(int(i), int(j)): k for k, (i, j) in enumerate(old_pairs)}
-        for l, (i, j) in enumerate(self.pairs):
-            out[l] = lookup.get((int(i), int(j)), -1)
+        for row, (i, j) in enumerate(self.pairs):
+            out[row] = lookup.get((int(i), int(j)), -1)
         return out
 
     def carry(self, old_pairs: np.ndarray, old_x: np.ndarray) -> np.ndarray:
@@ -497,10 +498,10 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, dt: float = 0.
         lsym = needs_symmetrizing(spec["model"]) if symmetrize is None else sym
         if "far_degree" in spec:
             lsym = False               # one solve per product (bim_split: why that is enough)
-        if lsym:
-            mv = (lambda v, lm=lm: _symmetrized(lm, contacts.D, Dt, v))
-        else:
-            mv = (lambda v, lm=lm: Dt @ _apply(lm, contacts.D @ v))
+
+        def mv(v, lm=lm, lsym=lsym):
+            return _symmetrized(lm, contacts.D, Dt, v) if lsym else Dt @ _apply(lm, contacts.D @ v)
+
         low_ops[key] = Operator(LinearOperator((contacts.n, contacts.n), dtype=np.float64,
                                                matvec=mv), name=key)
     if low_ops and contacts.n:

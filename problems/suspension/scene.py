@@ -39,8 +39,9 @@ when verifying the solve, so the update needs no extra mobility solve.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Optional, Sequence
+from typing import Annotated, Any, Literal, Optional
 
 import numpy as np
 from scipy.spatial.distance import pdist
@@ -329,12 +330,12 @@ class LatticeScene:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_params(cls, params: LatticeParams) -> "LatticeScene":
+    def from_params(cls, params: LatticeParams) -> LatticeScene:
         """A scene from a parameter dataclass."""
         return cls(params=params)
 
     @classmethod
-    def from_spec(cls, spec: str) -> "LatticeScene":
+    def from_spec(cls, spec: str) -> LatticeScene:
         """A scene from ``lattice:m=3,model=rpy,...``."""
         scene = make_scene(spec)
         if not isinstance(scene, cls):
