@@ -133,7 +133,8 @@ def shifted_geomean(values, solved, pen: float, shift: float) -> float:
     return max(0.0, round(float(np.exp(np.mean(np.log(v + shift))) - shift), 9))
 
 
-def _stats(ok: pd.DataFrame, multi: bool) -> dict[str, str]:
+def emvp_stats(ok: pd.DataFrame, multi: bool) -> dict[str, str]:
+    """``min``/``median``/``mean``/``max`` E-MVPs as text; high MVPs in parentheses if ``multi``."""
     out = {}
     for key, fn in (("min", np.min), ("median", np.median), ("mean", np.mean), ("max", np.max)):
         if ok.empty:
@@ -177,7 +178,7 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
         row: dict[str, Any] = {"solver": str(solver),
                                "solved": f"{int(ok_mask.sum())}/{len(g)}",
                "success": f"{100.0 * ok_mask.mean():.0f} %"}
-        row.update(_stats(g[ok_mask], multi))
+        row.update(emvp_stats(g[ok_mask], multi))
         row[f"median / {baseline}"] = (_both_solved_ratio(g, base) if len(base)
                                        else "- (baseline not run)")
         row["shifted GM"] = shifted_geomean(pd.to_numeric(g["emvps"], errors="coerce"),

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER
+from lcpbench.report.ranking import common_ground, emvp_stats, ranked_runs, ranking_table
 
 __all__ = ["reach_table", "offline_table", "paper_tables", "failures_table", "work_precision",
            "performance_profile", "online_table", "convergence_curves", "LEVELS",
@@ -55,7 +56,7 @@ def offline_table(results: pd.DataFrame) -> pd.DataFrame:
     for (problem, solver), g in off.groupby(["problem", "solver"], sort=True):
         ok = g[g["ok"]]
         multi = _truthy(g["multifidelity"]).any()
-        stats = _emvp_stats(ok, multi)
+        stats = emvp_stats(ok, multi)
         rows.append({
             "problem": problem, "solver": solver, "runs": len(g),
             "solved": f"{len(ok)}/{len(g)}",
@@ -68,17 +69,6 @@ def offline_table(results: pd.DataFrame) -> pd.DataFrame:
         })
     return pd.DataFrame(rows)
 
-
-def _emvp_stats(ok: pd.DataFrame, multi: bool) -> dict[str, str]:
-    """``min``/``median``/``mean``/``max`` E-MVPs as text; high MVPs in parentheses if ``multi``."""
-    out = {}
-    for key, fn in (("min", np.min), ("median", np.median), ("mean", np.mean), ("max", np.max)):
-        if ok.empty:
-            out[key] = "-"
-            continue
-        e = f"{fn(ok['emvps'].astype(float)):.3g}"
-        out[key] = f"{e} ({fn(ok['mvps'].astype(float)):.3g})" if multi else e
-    return out
 
 
 def _solver_order(g: pd.DataFrame) -> tuple:
@@ -101,7 +91,6 @@ def paper_tables(results: pd.DataFrame, baseline: str = BASELINE_SOLVER,
     dict
         ``{problem: DataFrame}``, problems sorted by name.
     """
-    from lcpbench.report.ranking import common_ground, ranked_runs, ranking_table
 
     off = ranked_runs(results, "emvps")
     out: dict = {}
@@ -230,7 +219,6 @@ def performance_profile(results: pd.DataFrame, metric: str = "emvps",
         of the best); ``attrs["given"]`` maps each solver to how many of the
         problems it was run on and ``attrs["problems"]`` is their total.
     """
-    from lcpbench.report.ranking import ranked_runs
 
     r = ranked_runs(results, metric).copy()
     if r.empty:
