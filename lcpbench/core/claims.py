@@ -277,7 +277,7 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     when there is no such evidence. Candidates (:func:`_candidates`) are
     screened with the known products against ``NULL_RTOL ||A||`` (``||A||``
     the largest ratio ``||A v|| / ||v||`` among the known products, a lower
-    bound); the first that passes is confirmed with one counted product ``A d``
+    bound); the one nearest to null is confirmed with one counted product ``A d``
     (``info['infeasibility_mvps']``) and then must pass :func:`_certificate`:
     ``A d`` vanishes to the rounding of A along ``d`` (not of ``||A||``: a
     positive definite A with eigenvalues 0.1 ... 3.4e10 is not singular along
@@ -329,7 +329,11 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
 
 def _screened(ctx: SolverContext, x: np.ndarray,
               w: np.ndarray) -> Optional[tuple[np.ndarray, float]]:
-    """The first candidate whose known product passes ``NULL_RTOL ||A||``, as ``(d, b'd)``."""
+    """The candidate whose known product is nearest to null, within ``NULL_RTOL ||A||``.
+
+    As ``(d, b'd)``, or None. Only one candidate is confirmed (a counted product), so
+    the one with the smallest predicted ``||(A d)_+||`` is taken.
+    """
     D, Y = _known_directions(ctx)
     # a lower bound on ||A|| from the known products: the iterates' and the unit directions'
     col = [safe_norm(Y[:, j]) for j in range(Y.shape[1])]
@@ -337,6 +341,7 @@ def _screened(ctx: SolverContext, x: np.ndarray,
     if not np.isfinite(norm_A):
         return None
     tol = NULL_RTOL * norm_A
+    best, least = None, np.inf
     for d, Ad in _candidates(ctx, x, w, D, Y, norm_A):
         d = np.maximum(d, 0.0)                 # a combination may dip below 0 by rounding
         nd = safe_norm(d)
@@ -344,9 +349,10 @@ def _screened(ctx: SolverContext, x: np.ndarray,
             continue
         d = d / nd
         bd = float(ctx.b @ d)
-        if bd < 0.0 and safe_norm(np.maximum(Ad, 0.0)) <= tol * nd:
-            return d, bd
-    return None
+        pos = safe_norm(np.maximum(Ad, 0.0)) / nd
+        if bd < 0.0 and pos <= tol and pos < least:
+            best, least = (d, bd), pos
+    return best
 
 
 def _sparsified(d: np.ndarray) -> list[np.ndarray]:
