@@ -173,7 +173,9 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     Works on ``w - A z - e z0 = b`` with the basis inverse updated by one
     elementary pivot per step (O(n^2)); the warm start is ignored. ``b >= 0``
     returns ``x = 0`` at once. For PSD A a secondary ray means the LCP has no
-    solution: the solve ends ``failed`` honestly. At termination the solution
+    solution: the solve claims ``infeasible`` and offers the ray's ``z`` part, which
+    the framework must confirm (rounding in the pivots can end on a ray of a solvable
+    problem; the claim is then returned as ``stagnated``). At termination the solution
     is recomputed by a direct solve with the final basis (removing the drift of
     the updated inverse), then ``w = A x + b`` costs one counted MVP.
     ``info``: ``pivots``.

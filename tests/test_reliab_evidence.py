@@ -2,10 +2,10 @@
 
 A-PGD (a fixed step 1/L) and min-map Newton (Krylov steps on a singular system) never
 walk far enough for their iterate or their last step alone to be a null direction to
-the rounding of A along it; the framework searches the span of the recent steps and of the directions
-solvers offer with their products, and confirms the best non-negative combination with
-one counted product (two when the candidate has tiny entries: without them first).
-Never on a problem that has a solution.
+the rounding of A along it; the framework searches the span of the recent steps and of
+the directions solvers offer with their products, and confirms the best non-negative
+combination with one counted product (two when the candidate has tiny entries: without
+them first). Never on a problem that has a solution.
 """
 
 from dataclasses import dataclass

@@ -1,7 +1,7 @@
 """What a result may claim: convergence confirmed by a fresh product, infeasibility from evidence.
 
-Both checks run in the framework after the solver returns, once for every
-solver family, and both use counted products of the high-fidelity operator:
+The checks run in the framework after the solver returns, once for every
+solver family; the confirmations use counted products of the high-fidelity operator:
 
 * :func:`confirm_convergence`: a ``converged`` status is a claim about
   ``A x + b`` at the returned ``x``. Solvers that update ``w`` by a recurrence
@@ -20,10 +20,15 @@ solver family, and both use counted products of the high-fidelity operator:
   iterate, the last step, and the best non-negative combination of the
   directions whose products are already known (the recent iterates and their
   differences, and the directions a solver offered with
-  :meth:`~lcpbench.core.context.SolverContext.offer_direction`). When the
-  known products suggest such a direction, one counted product ``A d``
-  (allowed past the budget: the solve is over) confirms it, and the status
-  becomes ``infeasible`` with the bound in the message.
+  :meth:`~lcpbench.core.context.SolverContext.offer_direction`). The one the
+  known products show nearest to null is confirmed with a counted product
+  (allowed past the budget: the solve is over), and the status becomes
+  ``infeasible`` only when ``A d`` vanishes to the rounding of A along ``d``
+  (:func:`_certificate`), not merely relative to ``||A||``.
+* :func:`check_infeasibility`: a solver's own ``infeasible`` is held to the
+  same certificate; unconfirmed, it becomes ``stagnated``.
+* :func:`verify_claim`: the framework's verifying product has the last word
+  on ``converged``.
 """
 
 from __future__ import annotations
@@ -111,8 +116,9 @@ def verify_claim(ctx: SolverContext, res: SolveResult, w: np.ndarray) -> None:
     :meth:`~lcpbench.core.context.SolverContext.operator_accuracy`) the point is
     verified twice (a second uncounted product; not for a matrix, nor for an
     operator already measured exact) and both must meet the threshold, so that
-    a product that is not reproducible cannot pass by chance. A refuted claim becomes ``stagnated``, with a message that says how
-    accurate the operator is when it declared nothing, and
+    a product that is not reproducible cannot pass by chance. A refuted claim
+    becomes ``stagnated``, with a message that says how accurate the operator
+    is when it declared nothing, and
     ``info['refuted_by_verification']``.
     """
     if res.status != Status.converged or ctx.n == 0:

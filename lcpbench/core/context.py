@@ -248,7 +248,7 @@ class SolverContext:
         return self._accuracy is not None and self._accuracy.exact
 
     def accuracy_advice(self) -> str:
-        """A sentence for messages when the operator's products are inexact and undeclared, else ''."""
+        """A sentence for messages when the products are inexact and undeclared, else ''."""
         acc = self.operator_accuracy()
         if acc.known:
             return ""

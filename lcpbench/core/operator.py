@@ -397,7 +397,7 @@ class Accuracy:
 
     @property
     def known(self) -> bool:
-        """True when the accuracy is declared, or measured exact: a drift bound built on it holds."""
+        """True when the accuracy is declared, or measured exact: a drift bound on it holds."""
         return self.source == "declared" or self.exact
 
 
