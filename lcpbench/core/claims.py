@@ -76,12 +76,14 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
     if x.shape != (ctx.n,) or not np.all(np.isfinite(x)):
         return res                          # the framework's checks fail it later
     bound = ctx.certified(x)
+    Ax = ctx.A.last_product(x) if np.any(x) else np.zeros(ctx.n)     # free: A 0 = 0
     # a drift bound assumes products as accurate as declared, or float64-exact: an operator
-    # that declares nothing is measured first (free for a matrix, uncounted otherwise)
-    if bound is not None and bound <= ctx.threshold and ctx.operator_accuracy().known:
+    # that declares nothing is measured first (uncounted), unless a free product is at hand
+    if bound is not None and bound <= ctx.threshold and (
+            ctx.measured_exact() or ctx.A.rtol is not None
+            or (Ax is None and ctx.operator_accuracy().known)):
         ctx.info["confirmed_by"] = "drift bound"
         return res
-    Ax = ctx.A.last_product(x)
     if Ax is None:
         before = ctx.A.count
         try:

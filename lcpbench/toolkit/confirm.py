@@ -111,7 +111,8 @@ class ConfirmedReport:
         thr = self.ctx.threshold
         claim = float(np.linalg.norm(np.minimum(z, G)))
         confirmed = False
-        if claim <= thr and not exact and self.inexact is None:
+        if claim <= thr and not exact and self.inexact is None and self.drift > 0.0:
+            # a recurrence has run since the last exact product: is the operator exact?
             self.inexact = not self.ctx.operator_accuracy().known
         always = always or bool(self.inexact)
         doubt = always or thr < claim + self.drift + floor
