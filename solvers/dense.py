@@ -25,7 +25,7 @@ honest and the reported ``w`` independent of the dense sweeps:
 
 from __future__ import annotations
 
-from typing import Annotated, Optional
+from typing import Annotated
 
 from dataclasses import dataclass
 
@@ -143,14 +143,15 @@ def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.nda
     return int(near[0])
 
 
-def _ray_direction(basis: np.ndarray, d: np.ndarray, entering: int,
-                   n: int) -> Optional[np.ndarray]:
-    """The ``z`` part of Lemke's secondary ray, clipped to ``>= 0`` (None when it is 0).
+def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: int) -> None:
+    """Offer the ``z`` part of Lemke's secondary ray, clipped to ``>= 0``, with its product.
 
     Along the ray the entering variable grows by ``t`` and the basic variable of row
     ``i`` by ``-t d_i``; for PSD A its ``z`` part is a direction ``d >= 0`` with
-    ``A d = 0`` and ``b'd < 0``, which the framework checks.
+    ``A d = 0`` and ``b'd < 0``, which the framework checks (the product is the dense
+    matrix's, free; the framework confirms it with a counted one).
     """
+    n = ctx.n
     dz = np.zeros(n)
     for i, k in enumerate(basis):
         if n <= k < 2 * n:
@@ -158,7 +159,8 @@ def _ray_direction(basis: np.ndarray, d: np.ndarray, entering: int,
     if n <= entering < 2 * n:
         dz[entering - n] += 1.0
     dz = np.maximum(dz, 0.0)
-    return dz if np.any(dz > 0.0) else None
+    if np.any(dz > 0.0):
+        ctx.offer_direction(dz, ctx.dense @ dz)
 
 
 @register_solver("lemke", LemkeParams, needs_dense=True)
@@ -222,9 +224,7 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
         else:
             row = _lex_min_ratio(rhs, Binv, d, col, p.pivot_tol)
             if row is None:
-                ray = _ray_direction(basis, d, entering, n)
-                if ray is not None:     # the framework confirms the claim along the ray
-                    ctx.offer_direction(ray, ctx.dense @ ray)
+                _offer_ray(ctx, basis, d, entering)    # the framework confirms the claim
                 status, message = Status.infeasible, (
                     f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
                     "the LCP is infeasible)")
