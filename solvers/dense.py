@@ -152,6 +152,26 @@ def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.nda
     return int(near[0])
 
 
+def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: int) -> None:
+    """Offer the ``z`` part of Lemke's secondary ray, clipped to ``>= 0``, with its product.
+
+    Along the ray the entering variable grows by ``t`` and the basic variable of row
+    ``i`` by ``-t d_i``; for PSD A its ``z`` part is a direction ``d >= 0`` with
+    ``A d = 0`` and ``b'd < 0``, which the framework checks (the product is the dense
+    matrix's, free; the framework confirms it with a counted one).
+    """
+    n = ctx.n
+    dz = np.zeros(n)
+    for i, k in enumerate(basis):
+        if n <= k < 2 * n:
+            dz[k - n] = -d[i]
+    if n <= entering < 2 * n:
+        dz[entering - n] += 1.0
+    dz = np.maximum(dz, 0.0)
+    if np.any(dz > 0.0):
+        ctx.offer_direction(dz, ctx.dense @ dz)
+
+
 @register_solver("lemke", LemkeParams, needs_dense=True)
 @on_one_blas_thread
 def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
@@ -165,7 +185,9 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     Works on ``w - A z - e z0 = b`` with the basis inverse updated by one
     elementary pivot per step (O(n^2)); the warm start is ignored. ``b >= 0``
     returns ``x = 0`` at once. For PSD A a secondary ray means the LCP has no
-    solution: the solve ends ``failed`` honestly. At termination the solution
+    solution: the solve claims ``infeasible`` and offers the ray's ``z`` part, which
+    the framework must confirm (rounding in the pivots can end on a ray of a solvable
+    problem; the claim is then returned as ``stagnated``). At termination the solution
     is recomputed by a direct solve with the final basis (removing the drift of
     the updated inverse), then ``w = A x + b`` costs one counted MVP.
     ``info``: ``pivots``.
@@ -212,6 +234,7 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
         else:
             row = _lex_min_ratio(rhs, Binv, d, col, p.pivot_tol)
             if row is None:
+                _offer_ray(ctx, basis, d, entering)    # the framework confirms the claim
                 status, message = Status.infeasible, (
                     f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
                     "the LCP is infeasible)")

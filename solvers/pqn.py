@@ -191,6 +191,8 @@ def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveR
     memory = SecantMemory.from_pairs(pairs.S, pairs.Y, ctx.n)
     ctx.info["secant_memory"] = memory
     if out.reason == "unbounded":
+        if out.ray is not None:         # the top level's p and A p: the framework checks them
+            ctx.offer_direction(*out.ray)
         return ctx.finish(out.z, out.G, Status.infeasible,
                           "the quadratic is unbounded below along the search direction: the LCP "
                           "has no solution (A not PSD, or -b outside the cone)", state=memory)

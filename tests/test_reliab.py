@@ -12,6 +12,7 @@ from scipy.sparse.linalg import LinearOperator
 
 import lcpbench
 from lcpbench import LCP, Operator, register_solver
+from lcpbench.core.operator import ACCURACY_PROBES
 from lcpbench.core.result import Status
 from lcpbench.problems.inexact import inexact_lcp
 from lcpbench.problems.infeasible import infeasible_lcp, unbounded_lcp
@@ -194,9 +195,12 @@ def test_cost_measurement_is_a_counted_product():
     # a declared cost: E-MVPs then do not depend on timings, and solve has nothing to warn about
     res = lcpbench.solve(high, rng.standard_normal(20), solver="bi-pqn", low={"low": low},
                          low_cost=0.1)
-    # every application of the high operator is a counted MVP, except the framework's one
-    # uncounted verification product
-    assert high.calls == res.mvps + 1
+    # every application of the high operator is a counted MVP, except the framework's
+    # uncounted ones: the verification product and, for an operator that declares no
+    # accuracy, the probe that measures it (before a drift bound is trusted)
+    assert res.info["operator_accuracy_source"] == "measured"
+    assert res.info["operator_accuracy"] == 0.0          # a float64 product: exact
+    assert high.calls == res.mvps + 1 + ACCURACY_PROBES
     assert low.calls == res.lofi_mvps["low"]
 
 

@@ -2,9 +2,10 @@
 
 A-PGD (a fixed step 1/L) and min-map Newton (Krylov steps on a singular system) never
 walk far enough for their iterate or their last step alone to be a null direction to
-``NULL_RTOL``; the framework searches the span of the recent steps and of the directions
-solvers offer with their products, and confirms the best non-negative combination with
-one counted product. Never on a problem that has a solution.
+the rounding of A along it; the framework searches the span of the recent steps and of
+the directions solvers offer with their products, and confirms the best non-negative
+combination with one counted product (two when the candidate has tiny entries: without
+them first). Never on a problem that has a solution.
 """
 
 from dataclasses import dataclass
@@ -32,17 +33,19 @@ def _families(count: int = 12):
 
 
 @pytest.mark.usefixtures("one_blas_thread")
-@pytest.mark.parametrize("solver, least", [("a-pgd", 24), ("minmap-newton", 20)])
+@pytest.mark.parametrize("solver, least", [("a-pgd", 20), ("minmap-newton", 19)])
 def test_slow_solvers_reach_infeasible_with_one_extra_product(solver, least):
-    # before the span search both ended 'budget' or 'stagnated' on every one of these
+    # before the span search both ended 'budget' or 'stagnated' on every one of these; since
+    # the certificate asks A d to vanish to the rounding of A along d (not to 1e-10 ||A||)
+    # a few approximate directions no longer count (24 and 20 before, 21 and 20 measured)
     found = 0
     for lcp in _families():
         res = lcpbench.solve(lcp, solver=solver, max_emvps=300)
         assert res.status != Status.converged
-        assert res.mvps <= 300 + 1                      # at most the one confirming product
+        assert res.mvps <= 300 + 2          # the candidate without its tiny entries, then itself
         if res.status == Status.infeasible:
             found += 1
-            assert res.info["infeasibility_mvps"] == 1
+            assert res.info["infeasibility_mvps"] in (1, 2)
             assert "no solution" in res.message and "every feasible point" in res.message
             d = np.asarray(lcp.meta.get("direction", []))
             if d.size:                                  # the planted certificate agrees
@@ -185,10 +188,11 @@ def near_walker(ctx, p):
 
 def test_no_infeasible_when_the_iterate_is_as_far_out_as_the_bound():
     # A solvable problem (x = (0, 1e12)) whose A has an eigenvalue 1e-12 ||A||: e_2 passes the
-    # null test, but the nearly feasible iterate is already as far out as the bound 1e12
-    # proves (before: 'infeasible' on this solvable problem)
+    # screening against 1e-10 ||A||, but A e_2 = 1e-12 e_2 is not zero to the rounding of A
+    # along e_2 (before: 'infeasible' on this solvable problem)
     A = np.diag([1.0, 1e-12])
     res = lcpbench.solve(A, np.array([1.0, -1.0]), solver="test-near-walker")
     assert res.status == Status.max_iter, res.summary()
-    assert res.info["infeasibility_bound_within_reach"] == pytest.approx(1e12, rel=1e-6)
-    assert res.info["infeasibility_mvps"] == 1
+    assert "not zero to the rounding of A along d" in res.info["infeasibility_rejected"]
+    assert res.info["infeasibility_mvps"] in (1, 2)     # without its tiny entries, then itself
+

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
-from lcpbench.core.claims import confirm_convergence, infeasibility_evidence
+from lcpbench.core.claims import check_infeasibility, confirm_convergence, verify_claim
 from lcpbench.core.context import Budget, Monitor, SolverContext, StopSolver
 from lcpbench.core.deadline import Deadline
 from lcpbench.core.defaults import DEFAULT_SOLVER
@@ -134,7 +134,7 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
             res = _confirm(ctx, res)
         finally:
             ctx.detach()
-        infeasibility_evidence(ctx, res)
+        check_infeasibility(ctx, res)         # a solver's own 'infeasible' is checked too
     res.time_s = ctx.elapsed()
     return _complete(res, run, ctx, info, p, rule)
 
@@ -229,7 +229,9 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule
     res.verified = {"kkt_abs": float("nan")}
     if np.all(np.isfinite(x)):
         try:
-            res.verified = all_residuals(x, run.residual_w(x), run.b)
+            w_verified = run.residual_w(x)
+            res.verified = all_residuals(x, w_verified, run.b)
+            verify_claim(ctx, res, w_verified)      # never 'converged' against the verification
         except Exception as exc:  # the user's operator raised on the verifying product
             res.status = Status.failed
             res.message = (f"verification failed: {type(exc).__name__}: {exc}"

@@ -1,7 +1,7 @@
 """What a result may claim: convergence confirmed by a fresh product, infeasibility from evidence.
 
-Both checks run in the framework after the solver returns, once for every
-solver family, and both use counted products of the high-fidelity operator:
+The checks run in the framework after the solver returns, once for every
+solver family; the confirmations use counted products of the high-fidelity operator:
 
 * :func:`confirm_convergence`: a ``converged`` status is a claim about
   ``A x + b`` at the returned ``x``. Solvers that update ``w`` by a recurrence
@@ -20,10 +20,15 @@ solver family, and both use counted products of the high-fidelity operator:
   iterate, the last step, and the best non-negative combination of the
   directions whose products are already known (the recent iterates and their
   differences, and the directions a solver offered with
-  :meth:`~lcpbench.core.context.SolverContext.offer_direction`). When the
-  known products suggest such a direction, one counted product ``A d``
-  (allowed past the budget: the solve is over) confirms it, and the status
-  becomes ``infeasible`` with the bound in the message.
+  :meth:`~lcpbench.core.context.SolverContext.offer_direction`). The one the
+  known products show nearest to null is confirmed with a counted product
+  (allowed past the budget: the solve is over), and the status becomes
+  ``infeasible`` only when ``A d`` vanishes to the rounding of A along ``d``
+  (:func:`_certificate`), not merely relative to ``||A||``.
+* :func:`check_infeasibility`: a solver's own ``infeasible`` is held to the
+  same certificate; unconfirmed, it becomes ``stagnated``.
+* :func:`verify_claim`: the framework's verifying product has the last word
+  on ``converged``.
 """
 
 from __future__ import annotations
@@ -33,15 +38,22 @@ from typing import Optional
 import numpy as np
 
 from lcpbench.core.context import SolverContext
-from lcpbench.core.operator import BudgetExhausted
+from lcpbench.core.operator import BudgetExhausted, apply_uncounted, safe_norm
 from lcpbench.core.residuals import kkt_abs
 from lcpbench.core.result import SolveResult, Status
 
-__all__ = ["confirm_convergence", "infeasibility_evidence", "NULL_RTOL"]
+__all__ = ["confirm_convergence", "verify_claim", "check_infeasibility", "infeasibility_evidence",
+           "NULL_RTOL"]
 
 #: A direction counts as a null direction when ``||(A d)_+|| <= NULL_RTOL ||A||``:
 #: every feasible point then has a norm of at least ``|b'd| / (NULL_RTOL ||A||)``.
 NULL_RTOL = 1e-10
+#: The certificate: ``||(A d)_+|| <= NULL_ULPS eps n ||A (d1 - d2)||``, the rounding of the
+#: product along ``d`` (see :func:`_certificate`).
+NULL_ULPS = 16.0
+#: Entries of a candidate below this fraction of its largest are dropped first (see
+#: :func:`_sparsified`).
+SPARSE_REL = 1e-6
 #: When the returned iterate is nearly feasible, ``infeasible`` needs the proven bound on
 #: feasible points beyond this many times its norm (see :func:`infeasibility_evidence`).
 BOUND_MARGIN = 10.0
@@ -64,10 +76,14 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
     if x.shape != (ctx.n,) or not np.all(np.isfinite(x)):
         return res                          # the framework's checks fail it later
     bound = ctx.certified(x)
-    if bound is not None and bound <= ctx.threshold:
+    Ax = ctx.A.last_product(x) if np.any(x) else np.zeros(ctx.n)     # free: A 0 = 0
+    # a drift bound assumes products as accurate as declared, or float64-exact: an operator
+    # that declares nothing is measured first (uncounted), unless a free product is at hand
+    if bound is not None and bound <= ctx.threshold and (
+            ctx.measured_exact() or ctx.A.rtol is not None
+            or (Ax is None and ctx.operator_accuracy().known)):
         ctx.info["confirmed_by"] = "drift bound"
         return res
-    Ax = ctx.A.last_product(x)
     if Ax is None:
         before = ctx.A.count
         try:
@@ -86,9 +102,40 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
     res.status = Status.stagnated
     res.message = (f"convergence refuted: the solver's w gave {kkt_abs(x, res.w):.3g} but a fresh "
                    f"product at the returned x gives ||min(x, Ax+b)|| = {fresh:.3g} > "
-                   f"{ctx.threshold:.3g} (the solver's recurrence drifted from A x + b)")
+                   f"{ctx.threshold:.3g} (the solver's recurrence drifted from A x + b)"
+                   + ctx.accuracy_advice())
     ctx.info["refuted_convergence"] = True
     return res
+
+
+def verify_claim(ctx: SolverContext, res: SolveResult, w: np.ndarray) -> None:
+    """Hold ``res``'s ``converged`` to the framework's verification ``w = A x + b``.
+
+    The last word on a convergence claim: whatever confirmed it before (a drift
+    bound, the operator's last product, a fresh product), a status is never
+    ``converged`` when the verifying product refutes it. For an operator that
+    is not known to be float64-exact (see
+    :meth:`~lcpbench.core.context.SolverContext.operator_accuracy`) the point is
+    verified twice (a second uncounted product; not for a matrix, nor for an
+    operator already measured exact) and both must meet the threshold, so that
+    a product that is not reproducible cannot pass by chance. A refuted claim
+    becomes ``stagnated``, with a message that says how accurate the operator
+    is when it declared nothing, and
+    ``info['refuted_by_verification']``.
+    """
+    if res.status != Status.converged or ctx.n == 0:
+        return
+    x = np.asarray(res.x, dtype=np.float64).reshape(-1)
+    worst = kkt_abs(x, w)
+    if worst <= ctx.threshold and not ctx.A.explicit and not ctx.measured_exact():
+        worst = max(worst, kkt_abs(x, apply_uncounted(ctx.A, x) + ctx.b))
+    if worst <= ctx.threshold:
+        return
+    res.message = (f"convergence refuted by the framework's verification: at the returned x "
+                   f"||min(x, Ax+b)|| = {worst:.3g} > {ctx.threshold:.3g} (the solver said: "
+                   f"{res.message})" + ctx.accuracy_advice())
+    res.status = Status.stagnated
+    ctx.info["refuted_by_verification"] = worst
 
 
 def _candidates(ctx: SolverContext, x: np.ndarray, w: np.ndarray, D: np.ndarray,
@@ -100,14 +147,14 @@ def _candidates(ctx: SolverContext, x: np.ndarray, w: np.ndarray, D: np.ndarray,
     (:func:`_span_candidate`). A candidate may have entries slightly below 0;
     the caller clips them before the confirming product.
     """
-    nx = float(np.linalg.norm(x))
+    nx = safe_norm(x)
     if nx > 0.0 and np.all(x >= 0.0):
         yield x / nx, (w - ctx.b) / nx
     prev = ctx.previous
     if prev is not None and ctx.last is not None:
         dx = ctx.last[0] - prev[0]
         if np.all(dx >= 0.0):
-            nd = float(np.linalg.norm(dx))
+            nd = safe_norm(dx)
             if nd > 0.0:
                 yield dx / nd, (ctx.last[1] - prev[1]) / nd
     span = _span_candidate(ctx, D, Y, norm_A)
@@ -127,8 +174,8 @@ def _known_directions(ctx: SolverContext) -> tuple[np.ndarray, np.ndarray]:
     pairs += ctx.offered
     D, Y = [], []
     for d, Ad in pairs:
-        nd = float(np.linalg.norm(d))
-        if nd > 0.0:
+        nd = safe_norm(d)
+        if np.isfinite(nd) and nd > 0.0:
             D.append(d / nd)
             Y.append(Ad / nd)
     if not D:
@@ -202,22 +249,54 @@ def _nonnegative_combination(N: np.ndarray, b: np.ndarray,
     return y - np.linalg.lstsq(C, C @ y - rhs, rcond=None)[0]
 
 
+def check_infeasibility(ctx: SolverContext, res: SolveResult) -> Optional[float]:
+    """The framework's evidence of no solution, for every solve that did not converge.
+
+    A solver's own ``infeasible`` (Lemke's ray termination, a quadratic
+    unbounded along a search direction) is a claim like ``converged``: it is
+    taken back to ``stagnated`` and stands only if
+    :func:`infeasibility_evidence` certifies a direction (the solver may offer
+    its ray with :meth:`~lcpbench.core.context.SolverContext.offer_direction`).
+    An unconfirmed claim stays ``stagnated`` with the reason and
+    ``info['refuted_infeasibility']``. Returns the proven bound, or None.
+    """
+    claimed = res.status == Status.infeasible
+    said = res.message
+    if claimed:
+        res.status = Status.stagnated
+        ctx.info["solver_claimed_infeasible"] = said
+    bound = infeasibility_evidence(ctx, res)
+    if not claimed:
+        return bound
+    if bound is not None:
+        return bound
+    why = ctx.info.get("infeasibility_rejected", "no direction d >= 0 with A d ~ 0 and b'd < 0 "
+                                                 "among the known products")
+    res.message = (f"the solver's claim of no solution was not confirmed by the framework "
+                   f"({why}); the solver said: {said}")
+    ctx.info["refuted_infeasibility"] = True
+    return None
+
+
 def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[float]:
-    """Set ``res`` to ``infeasible`` when a null direction with ``b'd < 0`` is confirmed.
+    """Set ``res`` to ``infeasible`` when a null direction with ``b'd < 0`` is certified.
 
     Returns the proven lower bound on the norm of any feasible point, or None
-    when there is no such evidence. ``||A||`` is the largest ratio
-    ``||A v|| / ||v||`` among the known products (the context's secant estimate
-    and the offered directions: a lower bound, so the test errs towards not
-    declaring). The candidates are tried in the order of :func:`_candidates`;
-    the first whose known products pass the test is confirmed. When the
-    returned iterate is nearly feasible (``||(A x + b)_-|| < |b'd| / 2``) the
-    proven bound must also exceed :data:`BOUND_MARGIN` times its norm: by
-    ``-||w_-|| <= d'w = x'A d + b'd <= ||x|| ||(A d)_+|| + b'd`` such an
-    iterate is itself about as far out as the bound, so the evidence could
-    come from a solvable problem whose solution is large (badly scaled ``A``);
-    the bound is then kept in ``info['infeasibility_bound_within_reach']``. At
-    most one counted product, recorded in ``info['infeasibility_mvps']``.
+    when there is no such evidence. Candidates (:func:`_candidates`) are
+    screened with the known products against ``NULL_RTOL ||A||`` (``||A||``
+    the largest ratio ``||A v|| / ||v||`` among the known products, a lower
+    bound); the one nearest to null is confirmed with one counted product ``A d``
+    (``info['infeasibility_mvps']``) and then must pass :func:`_certificate`:
+    ``A d`` vanishes to the rounding of A along ``d`` (not of ``||A||``: a
+    positive definite A with eigenvalues 0.1 ... 3.4e10 is not singular along
+    its 0.1 eigenvector), ``b'd < 0`` beyond the rounding of the dot product,
+    and, when the returned iterate is nearly feasible (``||(A x + b)_-|| <
+    |b'd| / 2``), a bound beyond :data:`BOUND_MARGIN` times its norm (such an
+    iterate is itself about as far out as the bound, by ``-||w_-|| <= d'w <=
+    ||x|| ||(A d)_+|| + b'd``). A rejected confirmation is recorded in
+    ``info['infeasibility_rejected']`` (and the bound in
+    ``info['infeasibility_bound_within_reach']`` for the last case). Norms are
+    overflow-safe: a warm start of 1e300 proves nothing by overflowing.
     """
     if res.status in (Status.converged, Status.failed, Status.infeasible) or ctx.n == 0:
         return None
@@ -226,45 +305,120 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     if x.shape != (ctx.n,) or w.shape != (ctx.n,) or not (np.all(np.isfinite(x))
                                                          and np.all(np.isfinite(w))):
         return None
-    D, Y = _known_directions(ctx)
-    # a lower bound on ||A|| from the known products: the iterates' and the unit directions'
-    norm_A = max(ctx.norm_A, float(np.max(np.linalg.norm(Y, axis=0))) if Y.shape[1] else 0.0)
-    tol = NULL_RTOL * norm_A
-    best = None
-    for d, Ad in _candidates(ctx, x, w, D, Y, norm_A):
-        d = np.maximum(d, 0.0)                 # a combination may dip below 0 by rounding
-        nd = float(np.linalg.norm(d))
-        if not nd > 0.0:
-            continue
-        d = d / nd
-        bd = float(ctx.b @ d)
-        if bd < 0.0 and float(np.linalg.norm(np.maximum(Ad, 0.0))) <= tol * nd:
-            best = (d, bd)
-            break
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        best = _screened(ctx, x, w)
     if best is None:
         return None
     d, bd = best
     ctx.detach()                               # the solve is over: this product is evidence
-    try:
-        Ad = ctx.A @ d                         # d != 0: one counted product
-    except Exception as exc:                   # an operator failure here is not the solver's
-        ctx.info["infeasibility_check_error"] = f"{type(exc).__name__}: {exc}"
+    verdict = "no candidate"
+    for cand in _sparsified(d):
+        try:
+            Ad = np.asarray(ctx.A @ cand, dtype=np.float64)   # cand != 0: a counted product
+        except Exception as exc:               # an operator failure here is not the solver's
+            ctx.info["infeasibility_check_error"] = f"{type(exc).__name__}: {exc}"
+            return None
+        ctx.info["infeasibility_mvps"] = ctx.info.get("infeasibility_mvps", 0) + 1
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            verdict = _certificate(ctx, cand, Ad, x, w)
+        if not isinstance(verdict, str):
+            d, bd = cand, float(ctx.b @ cand)
+            break
+    if isinstance(verdict, str):
+        ctx.info["infeasibility_rejected"] = verdict
         return None
-    ctx.info["infeasibility_mvps"] = ctx.info.get("infeasibility_mvps", 0) + 1
-    pos = float(np.linalg.norm(np.maximum(Ad, 0.0)))
-    if pos > tol:
-        return None
-    bound = float("inf") if pos == 0.0 else -bd / pos
-    # For any x >= 0, -||(A x + b)_-|| <= d'(A x + b) <= ||x|| ||(A d)_+|| + b'd: an iterate
-    # with a small negative part of w reaches the bound's region itself. There the "far
-    # away" feasible points may be where the solver already is (badly scaled A, a large
-    # solution), so the evidence must reach beyond it.
-    near = float(np.linalg.norm(np.minimum(w, 0.0))) < 0.5 * -bd
-    if near and not bound > BOUND_MARGIN * float(np.linalg.norm(x)):
-        ctx.info["infeasibility_bound_within_reach"] = bound
-        return None
+    bound, pos, scale = verdict
     res.status = Status.infeasible
-    res.message = (f"no solution: d >= 0 with b'd = {bd:.3g} and ||(A d)_+|| = {pos:.3g} "
-                   f"(<= {NULL_RTOL:g} ||A||, ||A|| >= {norm_A:.3g}), so every feasible "
+    res.message = (f"no solution: d >= 0 with b'd = {bd:.3g} and ||(A d)_+|| = {pos:.3g}, zero to "
+                   f"the rounding of A along d (||A (d1 - d2)|| = {scale:.3g}), so every feasible "
                    f"point has ||x|| >= {bound:.3g}; ended as: {res.message}")
     return bound
+
+
+def _screened(ctx: SolverContext, x: np.ndarray,
+              w: np.ndarray) -> Optional[tuple[np.ndarray, float]]:
+    """The candidate whose known product is nearest to null, within ``NULL_RTOL ||A||``.
+
+    As ``(d, b'd)``, or None. Only one candidate is confirmed (a counted product), so
+    the one with the smallest predicted ``||(A d)_+||`` is taken.
+    """
+    D, Y = _known_directions(ctx)
+    # a lower bound on ||A|| from the known products: the iterates' and the unit directions'
+    col = [safe_norm(Y[:, j]) for j in range(Y.shape[1])]
+    norm_A = max([ctx.norm_A] + [c for c in col if np.isfinite(c)])
+    if not np.isfinite(norm_A):
+        return None
+    tol = NULL_RTOL * norm_A
+    best, least = None, np.inf
+    for d, Ad in _candidates(ctx, x, w, D, Y, norm_A):
+        d = np.maximum(d, 0.0)                 # a combination may dip below 0 by rounding
+        nd = safe_norm(d)
+        if not (np.isfinite(nd) and nd > 0.0) or not np.all(np.isfinite(Ad)):
+            continue
+        d = d / nd
+        bd = float(ctx.b @ d)
+        pos = safe_norm(np.maximum(Ad, 0.0)) / nd
+        if bd < 0.0 and pos <= tol and pos < least:
+            best, least = (d, bd), pos
+    return best
+
+
+def _sparsified(d: np.ndarray) -> list[np.ndarray]:
+    """``d`` without its entries below ``SPARSE_REL max(d)`` (when it has any and ``b'd`` stays
+    negative), then ``d`` itself: the directions to confirm, in turn.
+
+    A solver walking out along a null direction ``e_j`` carries the rest of its
+    iterate along, ``x / ||x|| = e_j + O(1 / ||x||)``; the small entries are what
+    keeps it from being null to rounding, and dropping them recovers ``e_j``.
+    """
+    keep = d >= SPARSE_REL * float(np.max(d))
+    if keep.all():
+        return [d]
+    short = np.where(keep, d, 0.0)
+    return [short / safe_norm(short), d]
+
+
+def _certificate(ctx: SolverContext, d: np.ndarray, Ad: np.ndarray, x: np.ndarray,
+                 w: np.ndarray):
+    """``(bound, ||(A d)_+||, scale)`` when the confirmed product certifies ``d``, else the reason.
+
+    The scale of A along ``d`` is ``||A (d1 - d2)||`` (one uncounted product of
+    the framework), where ``d = d1 + d2`` splits ``d``'s entries by size in
+    turn: when ``A d = A d1 + A d2`` vanishes it is about ``2 ||A d1||``, the
+    size of the terms whose cancellation the product rounds. The test follows
+    the matrix where ``d`` lives, not its largest eigenvalue (a diagonally
+    scaled problem keeps its small entries small, and ``e_j`` is null only when
+    column ``j`` is zero). ``A d`` must
+    vanish to ``NULL_ULPS eps n`` of it, ``b'd`` must be negative beyond the
+    rounding of ``b'd`` itself, and a nearly feasible iterate must be inside
+    the bound (see :func:`infeasibility_evidence`).
+    """
+    n = ctx.n
+    eps = float(np.finfo(np.float64).eps)
+    if not np.all(np.isfinite(Ad)):
+        return "the confirming product A d is not finite"
+    # alternate signs over d's entries by size: d = d1 + d2 with halves of similar weight,
+    # and A (d1 - d2) ~ 2 A d2 is the size of the terms that cancel in A d = A d1 + A d2
+    signs = np.ones(n)
+    signs[np.argsort(-d, kind="stable")[1::2]] = -1.0
+    try:
+        scale = safe_norm(apply_uncounted(ctx.A, signs * d))
+    except Exception as exc:
+        return f"the scale of A along d could not be measured: {type(exc).__name__}: {exc}"
+    pos = safe_norm(np.maximum(Ad, 0.0))
+    # float64 rounding even for an inexact operator: its products only blur A d, and a
+    # blur is no evidence (an inexact operator's problem is then never declared infeasible)
+    level = NULL_ULPS * eps * n * scale
+    if not (np.isfinite(scale) and pos <= level):
+        return (f"||(A d)_+|| = {pos:.3g} is not zero to the rounding of A along d "
+                f"({level:.3g} = {NULL_ULPS:g} eps n ||A (d1 - d2)||): A is not singular there")
+    bd = float(ctx.b @ d)
+    if not -bd > NULL_ULPS * eps * n * float(np.abs(ctx.b) @ d):
+        return f"b'd = {bd:.3g} is not negative beyond its rounding"
+    bound = float("inf") if pos == 0.0 else -bd / pos
+    near = safe_norm(np.minimum(w, 0.0)) < 0.5 * -bd
+    if near and not bound > BOUND_MARGIN * safe_norm(x):
+        ctx.info["infeasibility_bound_within_reach"] = bound
+        return (f"the bound ||x|| >= {bound:.3g} is within reach of the nearly feasible "
+                "iterate")
+    return bound, pos, scale

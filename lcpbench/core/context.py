@@ -30,7 +30,14 @@ import pandas as pd
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import BudgetExhausted, Operator, apply_uncounted
+from lcpbench.core.operator import (
+    Accuracy,
+    BudgetExhausted,
+    Operator,
+    apply_uncounted,
+    measure_accuracy,
+    safe_norm,
+)
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
@@ -167,6 +174,7 @@ class SolverContext:
         self._recent: deque = deque(maxlen=max(3, min(RECENT_ITERATES, room)))
         self._offered: deque = deque(maxlen=max(3, min(OFFERED_DIRECTIONS, room)))
         self._certified: Optional[tuple[np.ndarray, float]] = None
+        self._accuracy: Optional[Accuracy] = None
         #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
         #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
         self.norm_A = 0.0
@@ -211,6 +219,51 @@ class SolverContext:
     def emvps(self) -> float:
         return self.lcp.emvps()
 
+    def operator_accuracy(self) -> Accuracy:
+        """The high operator's accuracy: declared, explicit, or measured once per solve.
+
+        Measured by :func:`~lcpbench.core.operator.measure_accuracy` on the
+        framework's uncounted path the first time it is asked for (no counted
+        product, and the probe's time is not charged to the solver); a float64
+        matrix or a declared ``rtol`` costs nothing. Recorded in ``info``
+        (``operator_accuracy``, ``operator_accuracy_source`` and, for an inexact
+        undeclared operator, ``operator_accuracy_note``).
+        """
+        if self._accuracy is None:
+            t0 = time.perf_counter()
+            acc = measure_accuracy(self.A)
+            if acc.source == "measured" and self.A.output_eps > max(acc.rtol, 0.0):
+                acc = Accuracy(self.A.output_eps, "measured", acc.detail)
+            self._accuracy = acc
+            self.monitor.seconds += time.perf_counter() - t0
+            self.info["operator_accuracy"] = acc.rtol
+            self.info["operator_accuracy_source"] = acc.source
+            if not acc.known:
+                self.info["operator_accuracy_note"] = acc.detail
+        elif self._accuracy.source == "measured" and self.A.output_eps > self._accuracy.rtol:
+            # a later product came back narrower than the probe's
+            self._accuracy = Accuracy(self.A.output_eps, "measured",
+                                      "products returned in a dtype narrower than float64")
+            self.info["operator_accuracy"] = self._accuracy.rtol
+            self.info["operator_accuracy_note"] = self._accuracy.detail
+        return self._accuracy
+
+    def measured_exact(self) -> bool:
+        """True when the operator is a float64 matrix or was already measured exact (no probe)."""
+        if self.A.explicit and self.A.rtol is None:
+            return True
+        return self._accuracy is not None and self._accuracy.exact
+
+    def accuracy_advice(self) -> str:
+        """A sentence for messages when the products are inexact and undeclared, else ''."""
+        acc = self.operator_accuracy()
+        if acc.known:
+            return ""
+        about = "of unknown accuracy" if not np.isfinite(acc.rtol) else \
+            f"accurate to about {acc.rtol:.0e}"
+        return (f"; the operator is {about} ({acc.detail}): declare Operator(..., rtol=...) "
+                "so that the stop test is held at what its products can resolve")
+
     # ------------------------------------------------------------------ budget
     def _guard(self, op: Operator, k: int) -> None:
         if op.name == "high":
@@ -254,13 +307,15 @@ class SolverContext:
                "time_s": self.elapsed(), "kkt_abs_verified": verified}
         self.monitor.rows.append(row)
         if finite:
-            nx = float(np.linalg.norm(x))
-            if nx > 0.0:
-                self.norm_A = max(self.norm_A, float(np.linalg.norm(w - self.b)) / nx)
-            if self._last is not None:
-                dx = float(np.linalg.norm(x - self._last[0]))
-                if dx > 0.0:
-                    self.norm_A = max(self.norm_A, float(np.linalg.norm(w - self._last[1])) / dx)
+            # overflow-safe: a warm start of 1e300 must not turn the estimate into inf or nan
+            with np.errstate(over="ignore", invalid="ignore"):
+                nx = safe_norm(x)
+                if nx > 0.0:
+                    self._raise_norm_A(safe_norm(w - self.b) / nx)
+                if self._last is not None:
+                    dx = safe_norm(x - self._last[0])
+                    if dx > 0.0:
+                        self._raise_norm_A(safe_norm(w - self._last[1]) / dx)
             self._prev, self._last = self._last, (x.copy(), w.copy())
             self._recent.append(self._last)
         stop = False
@@ -297,6 +352,10 @@ class SolverContext:
             self.monitor.callback(dict(row), x)
         self.monitor.seconds += time.perf_counter() - t0
         return stop
+
+    def _raise_norm_A(self, ratio: float) -> None:
+        if np.isfinite(ratio):
+            self.norm_A = max(self.norm_A, ratio)
 
     @property
     def iterations(self) -> int:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Optional
 
 import numpy as np
@@ -27,7 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 __all__ = ["Operator", "BudgetExhausted", "OperatorError", "NonFiniteProduct", "apply_uncounted",
-           "as_operator", "measure_cost"]
+           "as_operator", "measure_cost", "Accuracy", "measure_accuracy", "safe_norm"]
 
 
 class BudgetExhausted(RuntimeError):
@@ -165,6 +166,9 @@ class Operator(LinearOperator):
         self.calls = 0
         self.nonfinite_at: Optional[int] = None
         self._guard: Optional[Callable[[Operator, int], None]] = None
+        #: The largest machine epsilon of a product's output dtype narrower than float64
+        #: (float32: 1.2e-7), 0 while every product came back in float64.
+        self.output_eps = 0.0
 
     # ------------------------------------------------------------------ counting
     def _apply(self, X: np.ndarray) -> np.ndarray:
@@ -256,6 +260,8 @@ def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:
         raise
     except Exception as exc:
         raise OperatorError(f"operator {op.name!r} raised {type(exc).__name__}: {exc}") from exc
+    if Y.dtype.kind == "f" and Y.dtype.itemsize < 8:
+        op.output_eps = max(op.output_eps, float(np.finfo(Y.dtype).eps))
     want = (op.shape[0],) + X.shape[1:]
     if Y.shape != want:
         raise OperatorError(f"operator {op.name!r} returned an array of shape {Y.shape} for an "
@@ -345,3 +351,100 @@ def measure_cost(op: Operator, min_seconds: float = 0.02, max_reps: int = 50,
         reps += 1
         if el >= min_seconds or reps >= max_reps:
             return max(el / reps, 1e-9)
+
+
+def safe_norm(v: np.ndarray) -> float:
+    """``||v||_2`` without overflow or underflow: entries of 1e300 give 1e300 sqrt(n), not inf.
+
+    inf only when an entry is infinite, nan when one is nan.
+    """
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    if v.size == 0:
+        return 0.0
+    m = float(np.max(np.abs(v)))
+    if m == 0.0 or not np.isfinite(m):
+        return m
+    return m * float(np.linalg.norm(v / m))
+
+
+#: A probe defect (see :func:`measure_accuracy`) at or below ``EXACT_ULPS eps n`` (capped at
+#: :data:`EXACT_CAP`) is float64 rounding: the operator counts as exact.
+EXACT_ULPS = 16.0
+#: Uncounted products one accuracy probe takes (:func:`measure_accuracy`).
+ACCURACY_PROBES = 4
+EXACT_CAP = 1e-10
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """The relative accuracy of an operator's products, and where it comes from.
+
+    Attributes
+    ----------
+    rtol : float
+        Relative error of a product: 0 for products exact to float64 rounding,
+        nan when it could not be measured (the probe raised or gave non-finite values).
+    source : str
+        ``"declared"`` (``Operator(rtol=)``), ``"explicit"`` (a float64 matrix) or
+        ``"measured"`` (:func:`measure_accuracy`).
+    detail : str
+        What was found, in words (for messages and ``info``).
+    """
+
+    rtol: float
+    source: str
+    detail: str
+
+    @property
+    def exact(self) -> bool:
+        """True when products are exact to float64 rounding."""
+        return self.rtol == 0.0
+
+    @property
+    def known(self) -> bool:
+        """True when the accuracy is declared, or measured exact: a drift bound on it holds."""
+        return self.source == "declared" or self.exact
+
+
+def measure_accuracy(op: Operator, seed: int = 0) -> Accuracy:
+    """How accurate ``op``'s products are, from four uncounted products (framework only).
+
+    A declared ``rtol`` and an explicit float64 matrix need no product. Otherwise
+    ``A u``, ``A v``, ``A (u + v)`` and ``A u`` again are applied to seeded
+    Gaussian vectors: an operator exact to float64 rounding is linear and
+    reproducible to about ``eps n`` of the products' size; an operator that
+    computes in single precision, or solves to a tolerance (GMRES, CG), is not.
+    The relative defect, or the epsilon of a narrower output dtype, is the
+    measured accuracy. Products that raise or are not finite give ``rtol = nan``.
+    """
+    if op.rtol is not None:
+        return Accuracy(float(op.rtol), "declared", f"declared rtol={op.rtol:g}")
+    if op.explicit:
+        return Accuracy(0.0, "explicit", "explicit float64 matrix")
+    n = int(op.shape[1])
+    rng = np.random.default_rng(seed)
+    u, v = rng.standard_normal(n), rng.standard_normal(n)
+    try:
+        Au, Av, Auv, Au2 = (np.asarray(apply_uncounted(op, z), dtype=np.float64)
+                            for z in (u, v, u + v, u))
+    except Exception as exc:  # the operator's own failure: unknown accuracy
+        return Accuracy(float("nan"), "measured", f"the accuracy probe raised "
+                                                   f"{type(exc).__name__}: {exc}")
+    scale = safe_norm(Au) + safe_norm(Av) + safe_norm(Auv)
+    if not np.isfinite(scale):
+        return Accuracy(float("nan"), "measured", "the accuracy probe gave non-finite products")
+    linear = safe_norm(Auv - Au - Av) / scale if scale > 0 else 0.0
+    repeat = safe_norm(Au2 - Au) / scale if scale > 0 else 0.0
+    level = min(EXACT_ULPS * float(np.finfo(np.float64).eps) * max(n, 1), EXACT_CAP)
+    rel = max(linear, repeat, op.output_eps)
+    if rel <= level:
+        return Accuracy(0.0, "measured", "products linear and reproducible to float64 rounding")
+    what = []
+    if op.output_eps:
+        what.append(f"products returned in a {op.output_eps:.1e}-epsilon (narrower than "
+                    "float64) dtype")
+    if linear > level:
+        what.append(f"A(u+v) - Au - Av = {linear:.1e} of the products")
+    if repeat > level:
+        what.append(f"the same product twice differs by {repeat:.1e}")
+    return Accuracy(float(rel), "measured", "; ".join(what))

@@ -36,6 +36,15 @@ class ConfirmedReport:
     ``converged`` at that iterate without a fresh product. After
     three confirmations that the exact residual refutes, the solve ends
     ``stagnated``: the tolerance is then below the attainable precision.
+
+    An operator that declares no ``rtol`` is not assumed exact: the first time
+    a claim meets the threshold, its accuracy is measured on the framework's
+    uncounted path (:meth:`~lcpbench.core.context.SolverContext.operator_accuracy`:
+    free for a float64 matrix). When its products are not float64-exact
+    (single precision, an iterative solve at an undeclared tolerance) the
+    drift bound does not hold: every claim is then confirmed by an exact
+    product, nothing is certified, and the stagnation message says how
+    accurate the operator is and to declare it.
     lcpbench's addition; not in the method paper or the solvers' sources.
 
     Call it as ``report(x, G)`` in place of ``ctx.report(x, G)``; ``G`` may be
@@ -58,6 +67,9 @@ class ConfirmedReport:
         self.norm_A = 0.0
         self.rtol = float(ctx.A.rtol or 0.0)
         self.path = 0.0
+        # undeclared accuracy is not exactness: measured at the first claim (None: not yet)
+        self.inexact: Optional[bool] = False if ctx.A.rtol is not None or ctx.A.explicit \
+            else None
         self._prev: Optional[tuple[np.ndarray, np.ndarray]] = None
         ctx.info["confirmations"] = 0
 
@@ -99,6 +111,10 @@ class ConfirmedReport:
         thr = self.ctx.threshold
         claim = float(np.linalg.norm(np.minimum(z, G)))
         confirmed = False
+        if claim <= thr and not exact and self.inexact is None and self.drift > 0.0:
+            # a recurrence has run since the last exact product: is the operator exact?
+            self.inexact = not self.ctx.operator_accuracy().known
+        always = always or bool(self.inexact)
         doubt = always or thr < claim + self.drift + floor
         if not exact and (self.drift > 0.0 or always) and claim <= thr and doubt \
                 and np.all(np.isfinite(G)):
@@ -123,6 +139,7 @@ class ConfirmedReport:
                 self.ctx.message = (
                     f"the gradient recurrence met the threshold {thr:.3g} {self.refuted} times "
                     f"but the exact residual did not (last {residual:.3g}): the tolerance is below "
-                    "the precision attainable for this b; loosen tol or use stop='kkt'")
+                    "the precision attainable for this b; loosen tol or use stop='kkt'"
+                    + (self.ctx.accuracy_advice() if self.inexact else ""))
                 return True
         return False

@@ -129,6 +129,9 @@ class LevelOutcome:
     reason: str
     iterations: int
     pairs: Pairs
+    #: For ``unbounded``: the direction ``p`` and its product ``Q p`` (the evidence a
+    #: solver offers the framework, which checks every ``infeasible`` claim).
+    ray: Optional[tuple] = None
 
 
 def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoOptions,
@@ -221,7 +224,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
     if seed is not None and len(seed):
         model.set_pairs(seed.S, seed.Y)
     it = 0
-    reason = "max_iter"
+    reason, ray = "max_iter", None
     while True:
         if not checked and stop(z, G):
             reason = "stop"
@@ -235,7 +238,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
             break
         Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
         if z_new is None:
-            reason = "unbounded"
+            reason, ray = "unbounded", (p, Qp)
             break
         it += 1
         if not model.add_pair(eta * p, eta * Qp):
@@ -245,7 +248,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
             G = exact_gradient(z)
             counters.recomputes += 1
     return LevelOutcome(z, G, reason, it, Pairs(list(model.S), list(model.Y),
-                                                [None] * len(model.S)))
+                                                [None] * len(model.S)), ray)
 
 
 def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
@@ -335,7 +338,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         inner_state = _carry(inner_state, _delta(state["model"], model), opts)
     first = warm_start
     it = streak = 0
-    reason = "max_iter"
+    reason, ray = "max_iter", None
     rho = model_error
     r_prev = prev_residual
     while True:
@@ -388,7 +391,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             counters.decisions.append("model")
         Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
         if z_new is None:
-            reason = "unbounded"
+            reason, ray = "unbounded", (p, Qp)
             break
         it += 1
         s, y = eta * p, eta * Qp
@@ -414,7 +417,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
             counters.recomputes += 1
-    return (LevelOutcome(z, G, reason, it, hi_pairs),
+    return (LevelOutcome(z, G, reason, it, hi_pairs, ray),
             {"pairs": hi_pairs, "inner": inner_state, "model": model})
 
 
@@ -432,7 +435,7 @@ def _as_mono(apply: Callable, z: np.ndarray, G: np.ndarray, stop: Callable, max_
                      seed=Pairs(list(diag.S), list(diag.Y)),
                      exact_gradient=exact_gradient, checked=checked)
     counters.mono_fallbacks += out.iterations
-    return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs),
+    return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs, out.ray),
             {"pairs": hi_pairs, "inner": inner_state, "model": model})
 
 
