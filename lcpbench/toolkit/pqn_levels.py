@@ -30,7 +30,7 @@ import numpy as np
 
 from lcpbench.core.residuals import kkt_abs
 from lcpbench.core.specs import Bounds, CheckedParams
-from lcpbench.toolkit.prox import weighted_prox
+from lcpbench.toolkit.prox import compact_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
@@ -138,9 +138,10 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoO
     prox step does not descend (an inexact prox); returns None when no descent
     direction exists (``z`` is stationary).
     """
-    d, U, V = model.factors()
+    d, W, P, N, gram = model.compact()
     y = z - model.apply_H(G)
-    zhat, info = weighted_prox(y, d, U, V, tol=opts.prox_tol, max_iter=opts.prox_max_iter)
+    zhat, info = compact_prox(y, d, W, P, N, gram, tol=opts.prox_tol,
+                              max_iter=opts.prox_max_iter)
     counters.prox_newton_iters += info.newton_iters
     counters.prox_damped += info.damped
     counters.prox_fallbacks += int(info.fallback)

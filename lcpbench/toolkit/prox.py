@@ -33,12 +33,13 @@ prox is the closed form ``max(y, 0)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-__all__ = ["weighted_prox", "ProxInfo", "FALLBACK_ITERS"]
+__all__ = ["weighted_prox", "compact_prox", "ProxInfo", "FALLBACK_ITERS"]
 
 #: Steps of the projected-gradient fallback (each O(n r)): a cost cap of about 500 n r
 #: (with the momentum restart it converges in a few hundred steps where plain
@@ -69,23 +70,6 @@ class ProxInfo:
     residual: float = float("nan")
 
 
-def _c_inverse(d: np.ndarray, U: np.ndarray):
-    """``v -> (D + U U')^{-1} v`` by the Woodbury identity, O(n r) per column."""
-    DiU = U / d[:, None]
-    r = U.shape[1]
-    if r == 0:
-        return lambda X: X / (d[:, None] if X.ndim == 2 else d)
-    K = np.eye(r) + U.T @ DiU
-    cho = np.linalg.cholesky(K)
-
-    def apply(X):
-        Dx = X / (d[:, None] if X.ndim == 2 else d)
-        t = np.linalg.solve(cho.T, np.linalg.solve(cho, U.T @ Dx))
-        return Dx - DiU @ t
-
-    return apply
-
-
 def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
                   tol: float = 1e-12, max_iter: int = 100,
                   fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
@@ -114,74 +98,186 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
     z : ndarray
     info : ProxInfo
     """
-    with one_blas_thread():       # rank-sized systems: threads cost more than they give
-        return _weighted_prox(y, d, U, V, tol=tol, max_iter=max_iter,
-                              fallback_iters=fallback_iters)
-
-
-def _weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
-                   tol: float, max_iter: int, fallback_iters: int) -> tuple[np.ndarray, ProxInfo]:
     y = np.asarray(y, dtype=np.float64)
     n = y.shape[0]
-    d = np.broadcast_to(np.asarray(d, dtype=np.float64), (n,)).copy()
     U = np.asarray(U, dtype=np.float64).reshape(n, -1)
     V = np.asarray(V, dtype=np.float64).reshape(n, -1)
-    info = ProxInfo()
     r1, r2 = U.shape[1], V.shape[1]
+    W = np.vstack([U.T, V.T])
+    eye = np.eye(r1 + r2)
+    with one_blas_thread():       # rank-sized systems: threads cost more than they give
+        return compact_prox(y, d, W, eye[:, :r1], eye[:, r1:], tol=tol, max_iter=max_iter,
+                            fallback_iters=fallback_iters)
+
+
+def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
+                 gram: Optional[np.ndarray] = None, *, tol: float = 1e-12, max_iter: int = 100,
+                 fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
+    """:func:`weighted_prox` for factors given by coefficients: ``U = W' P``, ``V = W' N``.
+
+    The semi-smooth Newton iteration works on the ``m x m`` Gram matrices of
+    ``W`` only: ``L`` and its Jacobian depend on the active set ``Lam`` through
+    ``W Lam D^-1 W'`` and ``W Lam y``, which are updated by the rows whose
+    activity changed from one Newton step to the next. A Newton step (and
+    each damping trial) costs one pass over ``W`` (``t = y + D^-1 W' c``) plus
+    ``O(k m^2 + m^3)`` for ``k`` changed rows; no ``n x m`` array is copied.
+    BLAS threads are the caller's business (:mod:`lcpbench.toolkit.blas`).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Point to project.
+    d : float or ndarray, shape (n,)
+        Positive diagonal of ``D``.
+    W : ndarray, shape (m, n)
+        Rows spanning the factors.
+    P, N : ndarray, shape (m, r1), (m, r2)
+        Coefficients of ``U`` and ``V``.
+    gram : ndarray, shape (m, m), optional
+        ``W W'`` if known (else computed: ``O(n m^2)``).
+    tol, max_iter, fallback_iters
+        As for :func:`weighted_prox`.
+
+    Returns
+    -------
+    z : ndarray
+    info : ProxInfo
+    """
+    y = np.asarray(y, dtype=np.float64)
+    info = ProxInfo()
+    r1, r2 = P.shape[1], N.shape[1]
     if r1 + r2 == 0 or np.all(y >= 0):
         # Closed form: a diagonal metric separates; y >= 0 is its own prox.
         return np.maximum(y, 0.0), info
-    DiU = U / d[:, None]
-    Cinv = _c_inverse(d, U)
-    CiV = Cinv(V) if r2 else np.zeros((n, 0))
-    y_c = y
-    scale = 1.0 + np.linalg.norm(y)
-
-    def L_of(a):
-        al, at = a[:r1], a[r1:]
-        t = y_c - DiU @ al + CiV @ at
-        x = np.maximum(t, 0.0)
-        L1 = U.T @ (y_c + CiV @ at - x) + al
-        L2 = V.T @ (y_c - x) + at
-        return np.concatenate([L1, L2]), t
-
-    a = np.zeros(r1 + r2)
-    Lv, t = L_of(a)
-    res = np.linalg.norm(Lv)
-    converged = res <= tol * scale
-    while not converged and info.newton_iters < max_iter:
-        info.newton_iters += 1
-        m = t > 0
-        J = np.eye(r1 + r2)
-        Um, Vm = U[m], V[m]
-        J[:r1, :r1] += Um.T @ DiU[m]
-        J[:r1, r1:] += U[~m].T @ CiV[~m]
-        J[r1:, :r1] += Vm.T @ DiU[m]
-        J[r1:, r1:] -= Vm.T @ CiV[m]
-        try:
-            step = -np.linalg.solve(J, Lv)
-        except np.linalg.LinAlgError:
-            step = -np.linalg.lstsq(J, Lv, rcond=None)[0]
-        lam = 1.0
-        while True:
-            a_new = a + lam * step
-            L_new, t_new = L_of(a_new)
-            r_new = np.linalg.norm(L_new)
-            if r_new <= (1 - 1e-4 * lam) * res or lam < 1e-10:
-                break
-            lam *= 0.5
-        if lam < 1.0:
-            info.damped += 1
-        delta = np.linalg.norm(a_new - a)
-        a, Lv, t, res = a_new, L_new, t_new, r_new
-        if res <= tol * scale or delta <= tol * (1.0 + np.linalg.norm(a)):
-            converged = res <= np.sqrt(tol) * scale
-            break
-    info.residual = float(res)
+    newton = _NewtonSystem(y, d, W, P, N, gram)
+    t, converged = newton.solve(tol, max_iter, info)
     if converged:
         return np.maximum(t, 0.0), info
     info.fallback = True
-    return _prox_fallback(y, d, U, V, fallback_iters, tol), info
+    n = y.shape[0]
+    dv = np.broadcast_to(np.asarray(d, dtype=np.float64), (n,)).copy()
+    return _prox_fallback(y, dv, W.T @ P, W.T @ N, fallback_iters, tol), info
+
+
+class _NewtonSystem:
+    """The root problem ``L(a, at) = 0`` of the weighted prox in Gram-matrix form.
+
+    With ``c = Qc at - P a`` (``D^-1 W' Qc = C^-1 V``, ``C = D + U U'``) the point
+    is ``t = y + D^-1 W' c`` and ``x = Lam t``; ``W x = h + M c`` with
+    ``M = W Lam D^-1 W'`` and ``h = W Lam y``, so ``L`` and its Jacobian are
+    small once ``(M, h)`` of the active set is known.
+    """
+
+    def __init__(self, y, d, W, P, N, gram):
+        self.y, self.W, self.P, self.N = y, W, P, N
+        self.r1 = P.shape[1]
+        self.scalar = np.ndim(d) == 0
+        self.d = float(d) if self.scalar else np.broadcast_to(
+            np.asarray(d, dtype=np.float64), y.shape)
+        if self.scalar:
+            G = W @ W.T if gram is None else gram
+            self.Gd = G / self.d
+        else:
+            self.Gd = (W / self.d) @ W.T
+        self.Wy = W @ y
+        Gd = self.Gd
+        if self.r1:
+            K = np.eye(self.r1) + P.T @ Gd @ P
+            self.Qc = N - P @ np.linalg.solve(K, P.T @ (Gd @ N))
+        else:
+            self.Qc = N.copy()
+        self.GdQc = Gd @ self.Qc
+
+    # ------------------------------------------------------------------ active set
+    def _rows(self, idx):
+        Wi = self.W[:, idx]
+        Di = Wi / (self.d if self.scalar else self.d[idx])
+        return Di @ Wi.T, Wi @ self.y[idx]
+
+    def masked(self, mask, prev=None):
+        """``(mask, M, h)`` for the active set ``mask``, updated from ``prev`` when cheaper."""
+        act = np.flatnonzero(mask)
+        if prev is not None:
+            flip = np.flatnonzero(mask != prev[0])
+            if flip.size <= min(act.size, mask.size - act.size):
+                on, off = flip[mask[flip]], flip[~mask[flip]]
+                M, h = prev[1].copy(), prev[2].copy()
+                if on.size:
+                    dM, dh = self._rows(on)
+                    M += dM
+                    h += dh
+                if off.size:
+                    dM, dh = self._rows(off)
+                    M -= dM
+                    h -= dh
+                return mask, M, h
+        if 2 * act.size <= mask.size:
+            M, h = self._rows(act)
+        else:
+            M, h = self._rows(np.flatnonzero(~mask))
+            M, h = self.Gd - M, self.Wy - h
+        return mask, M, h
+
+    def point(self, a):
+        """``t`` at ``a`` (one pass over ``W``)."""
+        c = self.Qc @ a[self.r1:] - self.P @ a[:self.r1]
+        return self.y + (self.W.T @ c) / self.d, c
+
+    def residual(self, a, c, act):
+        _, M, h = act
+        rest = self.Wy - h - M @ c
+        L1 = self.P.T @ (rest + self.GdQc @ a[self.r1:]) + a[:self.r1]
+        L2 = self.N.T @ rest + a[self.r1:]
+        return np.concatenate([L1, L2])
+
+    def jacobian(self, act):
+        _, M, _ = act
+        P, Qc, r1 = self.P, self.Qc, self.r1
+        MP, MQ = M @ P, M @ Qc
+        J = np.eye(r1 + Qc.shape[1])
+        J[:r1, :r1] += P.T @ MP
+        J[:r1, r1:] += P.T @ (self.GdQc - MQ)
+        J[r1:, :r1] += self.N.T @ MP
+        J[r1:, r1:] -= self.N.T @ MQ
+        return J
+
+    # ------------------------------------------------------------------ Newton
+    def solve(self, tol: float, max_iter: int, info: ProxInfo):
+        """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root."""
+        y = self.y
+        a = np.zeros(self.r1 + self.Qc.shape[1])
+        t = y
+        act = self.masked(t > 0)
+        Lv = self.residual(a, np.zeros(self.W.shape[0]), act)
+        scale = 1.0 + np.linalg.norm(y)
+        res = np.linalg.norm(Lv)
+        converged = res <= tol * scale
+        while not converged and info.newton_iters < max_iter:
+            info.newton_iters += 1
+            J = self.jacobian(act)
+            try:
+                step = -np.linalg.solve(J, Lv)
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(J, Lv, rcond=None)[0]
+            lam = 1.0
+            while True:
+                a_new = a + lam * step
+                t_new, c = self.point(a_new)
+                act_new = self.masked(t_new > 0, act)
+                L_new = self.residual(a_new, c, act_new)
+                r_new = np.linalg.norm(L_new)
+                if r_new <= (1 - 1e-4 * lam) * res or lam < 1e-10:
+                    break
+                lam *= 0.5
+            if lam < 1.0:
+                info.damped += 1
+            delta = np.linalg.norm(a_new - a)
+            a, Lv, t, res, act = a_new, L_new, t_new, r_new, act_new
+            if res <= tol * scale or delta <= tol * (1.0 + np.linalg.norm(a)):
+                converged = res <= np.sqrt(tol) * scale
+                break
+        info.residual = float(res)
+        return t, converged
 
 
 def _prox_fallback(y, d, U, V, iters, tol):
