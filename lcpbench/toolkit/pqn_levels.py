@@ -140,7 +140,7 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoO
     """
     d, W, P, N, gram = model.compact()
     y = z - model.apply_H(G)
-    zhat, info = compact_prox(y, d, W, P, N, gram, tol=opts.prox_tol,
+    zhat, info = compact_prox(y, d, W, P, N, gram, active=model.active, tol=opts.prox_tol,
                               max_iter=opts.prox_max_iter)
     counters.prox_newton_iters += info.newton_iters
     counters.prox_damped += info.damped

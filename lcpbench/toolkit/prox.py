@@ -39,7 +39,7 @@ import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-__all__ = ["weighted_prox", "compact_prox", "ProxInfo", "FALLBACK_ITERS"]
+__all__ = ["weighted_prox", "compact_prox", "ActiveGram", "ProxInfo", "FALLBACK_ITERS"]
 
 #: Steps of the projected-gradient fallback (each O(n r)): a cost cap of about 500 n r
 #: (with the momentum restart it converges in a few hundred steps where plain
@@ -111,7 +111,8 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
 
 
 def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
-                 gram: Optional[np.ndarray] = None, *, tol: float = 1e-12, max_iter: int = 100,
+                 gram: Optional[np.ndarray] = None, *, active: Optional[ActiveGram] = None,
+                 tol: float = 1e-12, max_iter: int = 100,
                  fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
     """:func:`weighted_prox` for factors given by coefficients: ``U = W' P``, ``V = W' N``.
 
@@ -135,6 +136,9 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
         Coefficients of ``U`` and ``V``.
     gram : ndarray, shape (m, m), optional
         ``W W'`` if known (else computed: ``O(n m^2)``).
+    active : ActiveGram, optional
+        The active set and its Gram matrix of the previous evaluation with the
+        same ``W`` (scalar ``d`` only); updated in place to this evaluation's.
     tol, max_iter, fallback_iters
         As for :func:`weighted_prox`.
 
@@ -150,7 +154,7 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
         # Closed form: a diagonal metric separates; y >= 0 is its own prox.
         return np.maximum(y, 0.0), info
     newton = _NewtonSystem(y, d, W, P, N, gram)
-    t, converged = newton.solve(tol, max_iter, info)
+    t, converged = newton.solve(tol, max_iter, info, active)
     if converged:
         return np.maximum(t, 0.0), info
     info.fallback = True
@@ -159,13 +163,40 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     return _prox_fallback(y, dv, W.T @ P, W.T @ N, fallback_iters, tol), info
 
 
+@dataclass
+class ActiveGram:
+    """``W Lam W'`` of an active set, kept between prox evaluations of one model.
+
+    Consecutive proxes of a solve have nearly the same active set, so the Newton
+    system of the next one starts from this Gram matrix and the rows that
+    changed (``O(k m^2)``) instead of all active rows (``O(n m^2)``). The owner
+    extends ``gram`` when ``W`` gains rows. It is recomputed from scratch once
+    the rows changed since then exceed ``n``, which bounds the rounding that
+    adding and removing rows accumulates.
+
+    Attributes
+    ----------
+    mask : ndarray of bool, shape (n,)
+        The active set (``x > 0``).
+    gram : ndarray, shape (m, m)
+        ``W diag(mask) W'`` over the rows of ``W``.
+    flips : int
+        Rows added or removed since ``gram`` was computed from scratch.
+    """
+
+    mask: np.ndarray
+    gram: np.ndarray
+    flips: int = 0
+
+
 class _NewtonSystem:
     """The root problem ``L(a, at) = 0`` of the weighted prox in Gram-matrix form.
 
     With ``c = Qc at - P a`` (``D^-1 W' Qc = C^-1 V``, ``C = D + U U'``) the point
     is ``t = y + D^-1 W' c`` and ``x = Lam t``; ``W x = h + M c`` with
     ``M = W Lam D^-1 W'`` and ``h = W Lam y``, so ``L`` and its Jacobian are
-    small once ``(M, h)`` of the active set is known.
+    small once ``(M, h)`` of the active set is known. For a scalar ``d`` the
+    Gram matrices are kept without the factor ``1/d`` (``inv``).
     """
 
     def __init__(self, y, d, W, P, N, gram):
@@ -175,12 +206,13 @@ class _NewtonSystem:
         self.d = float(d) if self.scalar else np.broadcast_to(
             np.asarray(d, dtype=np.float64), y.shape)
         if self.scalar:
-            G = W @ W.T if gram is None else gram
-            self.Gd = G / self.d
+            self.G = W @ W.T if gram is None else gram
+            self.inv = 1.0 / self.d
         else:
-            self.Gd = (W / self.d) @ W.T
+            self.G = (W / self.d) @ W.T
+            self.inv = 1.0
         self.Wy = W @ y
-        Gd = self.Gd
+        Gd = self.inv * self.G
         if self.r1:
             K = np.eye(self.r1) + P.T @ Gd @ P
             self.Qc = N - P @ np.linalg.solve(K, P.T @ (Gd @ N))
@@ -189,34 +221,48 @@ class _NewtonSystem:
         self.GdQc = Gd @ self.Qc
 
     # ------------------------------------------------------------------ active set
-    def _rows(self, idx):
+    def _rows(self, idx, with_h=True):
         Wi = self.W[:, idx]
-        Di = Wi / (self.d if self.scalar else self.d[idx])
-        return Di @ Wi.T, Wi @ self.y[idx]
+        Di = Wi if self.scalar else Wi / self.d[idx]
+        return Di @ Wi.T, (Wi @ self.y[idx] if with_h else None)
 
-    def masked(self, mask, prev=None):
-        """``(mask, M, h)`` for the active set ``mask``, updated from ``prev`` when cheaper."""
+    def _gram_of(self, mask, prev, flips):
+        """``(W Lam W', flips)`` of ``mask``, from ``prev = (mask, gram)`` when cheaper."""
+        n = mask.size
         act = np.flatnonzero(mask)
         if prev is not None:
             flip = np.flatnonzero(mask != prev[0])
-            if flip.size <= min(act.size, mask.size - act.size):
+            if flip.size <= min(act.size, n - act.size) and flips + flip.size <= n:
+                M = prev[1].copy()
                 on, off = flip[mask[flip]], flip[~mask[flip]]
-                M, h = prev[1].copy(), prev[2].copy()
                 if on.size:
-                    dM, dh = self._rows(on)
-                    M += dM
-                    h += dh
+                    M += self._rows(on, False)[0]
                 if off.size:
-                    dM, dh = self._rows(off)
-                    M -= dM
-                    h -= dh
-                return mask, M, h
-        if 2 * act.size <= mask.size:
-            M, h = self._rows(act)
+                    M -= self._rows(off, False)[0]
+                return M, flips + flip.size
+        if 2 * act.size <= n:
+            return self._rows(act, False)[0], 0
+        return self.G - self._rows(np.flatnonzero(~mask), False)[0], 0
+
+    def start(self, mask, cache: Optional[ActiveGram]):
+        """``(mask, M, h, flips)`` at the start, from the cached active set if it fits."""
+        fits = cache is not None and cache.gram.shape == self.G.shape
+        M, flips = self._gram_of(mask, (cache.mask, cache.gram) if fits else None,
+                                 cache.flips if fits else 0)
+        return mask, M, self.W @ np.where(mask, self.y, 0.0), flips
+
+    def masked(self, mask, prev):
+        """``(mask, M, h, flips)`` of ``mask``, updated from the state ``prev``."""
+        flip = np.flatnonzero(mask != prev[0])
+        if not flip.size:
+            return prev
+        M, flips = self._gram_of(mask, prev[:2], prev[3])
+        if flips:
+            on, off = flip[mask[flip]], flip[~mask[flip]]
+            h = prev[2] + self.W[:, on] @ self.y[on] - self.W[:, off] @ self.y[off]
         else:
-            M, h = self._rows(np.flatnonzero(~mask))
-            M, h = self.Gd - M, self.Wy - h
-        return mask, M, h
+            h = self.W @ np.where(mask, self.y, 0.0)
+        return mask, M, h, flips
 
     def point(self, a):
         """``t`` at ``a`` (one pass over ``W``)."""
@@ -224,14 +270,14 @@ class _NewtonSystem:
         return self.y + (self.W.T @ c) / self.d, c
 
     def residual(self, a, c, act):
-        _, M, h = act
-        rest = self.Wy - h - M @ c
+        M, h = act[1], act[2]
+        rest = self.Wy - h - self.inv * (M @ c)
         L1 = self.P.T @ (rest + self.GdQc @ a[self.r1:]) + a[:self.r1]
         L2 = self.N.T @ rest + a[self.r1:]
         return np.concatenate([L1, L2])
 
     def jacobian(self, act):
-        _, M, _ = act
+        M = self.inv * act[1]
         P, Qc, r1 = self.P, self.Qc, self.r1
         MP, MQ = M @ P, M @ Qc
         J = np.eye(r1 + Qc.shape[1])
@@ -242,12 +288,17 @@ class _NewtonSystem:
         return J
 
     # ------------------------------------------------------------------ Newton
-    def solve(self, tol: float, max_iter: int, info: ProxInfo):
-        """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root."""
+    def solve(self, tol: float, max_iter: int, info: ProxInfo,
+              cache: Optional[ActiveGram] = None):
+        """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root.
+
+        ``cache`` (scalar ``d`` only) starts the active-set Gram matrix and
+        receives the last one.
+        """
         y = self.y
         a = np.zeros(self.r1 + self.Qc.shape[1])
         t = y
-        act = self.masked(t > 0)
+        act = self.start(t > 0, cache if self.scalar else None)
         Lv = self.residual(a, np.zeros(self.W.shape[0]), act)
         scale = 1.0 + np.linalg.norm(y)
         res = np.linalg.norm(Lv)
@@ -277,6 +328,8 @@ class _NewtonSystem:
                 converged = res <= np.sqrt(tol) * scale
                 break
         info.residual = float(res)
+        if cache is not None and self.scalar:
+            cache.mask, cache.gram, cache.flips = act[0], act[1], act[3]
         return t, converged
 
 

@@ -26,6 +26,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from lcpbench.toolkit.prox import ActiveGram
+
 __all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "bb2_scale", "free_secant_pair"]
 
 
@@ -236,6 +238,8 @@ class DiagonalBFGS:
         self._gram = np.zeros((0, 0))       # W W' by rows of _W
         self._order: list[int] = []         # storage slots, oldest pair first
         self._coef: Optional[tuple] = None  # (d, P, N) for the current pairs
+        #: the last prox's active set and W diag(mask) W' (kept up to date with W)
+        self._active = ActiveGram(np.zeros(n, dtype=bool), np.zeros((0, 0)))
 
     # ------------------------------------------------------------------ pairs
     def add_pair(self, s: np.ndarray, y: np.ndarray) -> bool:
@@ -254,9 +258,17 @@ class DiagonalBFGS:
         self._W[2 * slot] = s
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
-        g = rows @ self._W[2 * slot:2 * slot + 2].T          # (used, 2): one pass
-        self._gram[:used, 2 * slot:2 * slot + 2] = g
-        self._gram[2 * slot:2 * slot + 2, :used] = g.T
+        mask = self._active.mask
+        new = np.stack([s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)], axis=1)
+        g = rows @ new                                       # (used, 4): one pass
+        self._gram[:used, 2 * slot:2 * slot + 2] = g[:, :2]
+        self._gram[2 * slot:2 * slot + 2, :used] = g[:, :2].T
+        A = self._active.gram
+        if A.shape[0] < used:
+            A = np.pad(A, (0, used - A.shape[0]))
+        A[:used, 2 * slot:2 * slot + 2] = g[:, 2:]
+        A[2 * slot:2 * slot + 2, :used] = g[:, 2:].T
+        self._active.gram = A
         self._order.append(slot)
         self._coef = None
         return True
@@ -312,6 +324,12 @@ class DiagonalBFGS:
             self._coef = (d, *self._coefficients(d))
         m = 2 * (max(self._order) + 1) if self._order else 0
         return d, self._W[:m], self._coef[1], self._coef[2], self._gram[:m, :m]
+
+    @property
+    def active(self) -> ActiveGram:
+        """The active set of the last prox with its Gram matrix over the rows of ``W``
+        (:func:`lcpbench.toolkit.prox.compact_prox` starts from it and updates it)."""
+        return self._active
 
     def _coefficients(self, d: float) -> tuple[np.ndarray, np.ndarray]:
         """``P, N`` of the unrolled factors in the rows of ``W`` (the unrolled recursion)."""
