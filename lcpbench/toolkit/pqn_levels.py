@@ -34,18 +34,23 @@ from lcpbench.toolkit.prox import compact_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
-__all__ = ["Pairs", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
+__all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
            "bi_level", "low_start", "pqn_direction", "optimal_step", "model_check",
            "forcing_term"]
 
 
 @dataclass
 class Pairs:
-    """Secant pairs ``Q s_i = y_i`` (oldest first) with optional cached ``B0 s_i``."""
+    """Secant pairs ``Q s_i = y_i`` (oldest first) with optional cached ``B0 s_i``.
+
+    ``model``: the Mono-PQN model that holds exactly these pairs (a level hands
+    it on so the next subproblem continues it instead of rebuilding it).
+    """
 
     S: list = field(default_factory=list)
     Y: list = field(default_factory=list)
     B0S: list = field(default_factory=list)
+    model: Optional[DiagonalBFGS] = field(default=None, repr=False, compare=False)
 
     def add(self, s: np.ndarray, y: np.ndarray, b0s: Optional[np.ndarray] = None) -> None:
         self.S.append(s)
@@ -56,15 +61,37 @@ class Pairs:
         """Keep the newest ``memory`` pairs (0 keeps all)."""
         if memory and len(self.S) > memory:
             del self.S[:-memory], self.Y[:-memory], self.B0S[:-memory]
+            if self.model is not None:
+                self.model.trim(memory)
 
     def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> "Pairs":
-        """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept)."""
+        """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept).
+
+        With a rank-two ``delta`` (:class:`Rank2`) and a model, the model is
+        corrected in place in ``O(n r)`` and handed on (its pairs that lose the
+        curvature test dropped, as rebuilding it would).
+        """
+        if isinstance(delta, Rank2) and self.model is not None:
+            model, self.model = self.model, None
+            model.correct(delta.u, delta.v)
+            return Pairs(model.S, model.Y, [None] * model.rank, model=model)
         return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
                      list(self.B0S))
 
     def __len__(self) -> int:
         return len(self.S)
 
+
+
+@dataclass(frozen=True)
+class Rank2:
+    """``v -> u u'v - w w'v``: the change of a BFGS model by one update."""
+
+    u: np.ndarray
+    v: np.ndarray
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.u * float(self.u @ x) - self.v * float(self.v @ x)
 
 
 @dataclass(frozen=True)
@@ -217,9 +244,14 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         a second report of the same iterate would look like stagnation).
     """
     mem = opts.memory if memory is None else memory
-    model = DiagonalBFGS(z.shape[0], memory=mem or None, scaling=opts.scaling, gamma=opts.gamma)
-    if seed is not None and len(seed):
-        model.set_pairs(seed.S, seed.Y)
+    if seed is not None and seed.model is not None and \
+            seed.model.memory == (mem or max(z.shape[0], 1)):
+        model, seed.model = seed.model, None          # continue the handed-on model
+    else:
+        model = DiagonalBFGS(z.shape[0], memory=mem or None, scaling=opts.scaling,
+                             gamma=opts.gamma)
+        if seed is not None and len(seed):
+            model.set_pairs(seed.S, seed.Y)
     it = 0
     reason = "max_iter"
     while True:
@@ -244,8 +276,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
             counters.recomputes += 1
-    return LevelOutcome(z, G, reason, it, Pairs(list(model.S), list(model.Y),
-                                                [None] * len(model.S)))
+    return LevelOutcome(z, G, reason, it, Pairs(model.S, model.Y, [None] * model.rank,
+                                                model=model))
 
 
 def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
@@ -392,10 +424,11 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             break
         it += 1
         s, y = eta * p, eta * Qp
-        b0p = base(p) if Bp is None else Bp - model.correction(p)
-        Bs = eta * (b0p + model.correction(p))
+        corr = model.correction(p)
+        b0p = base(p) if Bp is None else Bp - corr
+        Bs = eta * (b0p + corr)
         # the model check: the new high gradient is known; how well did B predict it?
-        rho = model_check(Qp, b0p + model.correction(p))
+        rho = model_check(Qp, b0p + corr)
         counters.model_errors.append(rho)
         old_model = model
         model = _copy_model(model)
@@ -405,11 +438,13 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         else:
             hi_pairs.add(s, y, eta * b0p)
         diag.add_pair(s, y)
+        delta = None if uv is None else Rank2(*uv)
         if opts.memory and len(hi_pairs) > opts.memory:
             hi_pairs.trim(opts.memory)
             model = _rebuild(base, n, hi_pairs)
+            delta = _delta(old_model, model)
         # carry the subproblem's pairs to the next subproblem: Y <- Y + (B_new - B_old) S
-        inner_state = _carry(inner_state_new, _delta(old_model, model), opts)
+        inner_state = _carry(inner_state_new, delta, opts)
         z, G = z_new, G_new
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
@@ -537,13 +572,16 @@ def _delta(old: OperatorBFGS, new: OperatorBFGS) -> Callable[[np.ndarray], np.nd
     return lambda v: new.correction(v) - old.correction(v)
 
 
-def _carry(inner_state, delta: Callable, opts: BiOptions):
-    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change."""
+def _carry(inner_state, delta: Optional[Callable], opts: BiOptions):
+    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change.
+
+    ``delta`` None: the model did not change (a skipped update).
+    """
     if isinstance(inner_state, Pairs):
-        out = inner_state.corrected(delta)
+        out = inner_state if delta is None else inner_state.corrected(delta)
         out.trim(opts.inner_memory)
         return out
-    if isinstance(inner_state, dict):
+    if isinstance(inner_state, dict) and delta is not None:
         # the inner level's Hessian is this level's B: its high pairs see the change;
         # its base (a lower fidelity) and its own inner pairs are unaffected.
         return {"pairs": inner_state["pairs"].corrected(delta), "inner": inner_state["inner"],

@@ -250,11 +250,12 @@ class DiagonalBFGS:
         m = len(self._order)
         if m >= self.memory:                # replace the oldest pair's slot
             slot = self._order.pop(0)
-        else:
-            slot = m
-            if 2 * m + 2 > self._W.shape[0]:
-                self._grow(min(max(2 * m, 4), self.memory))
-        used = 2 * max(len(self._order) + 1, slot + 1)
+        else:                               # the first free slot (dropped pairs leave holes)
+            taken = set(self._order)
+            slot = next(k for k in range(m + 1) if k not in taken)
+            if 2 * slot + 2 > self._W.shape[0]:
+                self._grow(min(max(self._W.shape[0], 4, slot + 1), self.memory))
+        used = 2 * (max(self._order + [slot]) + 1)
         self._W[2 * slot] = s
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
@@ -280,6 +281,52 @@ class DiagonalBFGS:
         W[:k] = self._W
         G[:k, :k] = self._gram
         self._W, self._gram = W, G
+
+    def trim(self, memory: int) -> None:
+        """Keep the newest ``memory`` pairs (0 keeps all)."""
+        if memory and len(self._order) > memory:
+            del self._order[:-memory]
+            self._coef = None
+
+    def correct(self, u: np.ndarray, v: np.ndarray) -> None:
+        """Pairs of the changed Hessian ``Q + u u' - v v'``: ``y_i <- y_i + u u's_i - v v's_i``.
+
+        ``O(n r)``: four passes over the pairs (their products with ``u``, ``v``
+        and the active set's), one update of the ``y`` rows, and the Gram
+        matrices corrected in ``O(r^2)``. Pairs that lose the curvature test are
+        dropped (counted in ``skipped``), as :meth:`set_pairs` would.
+        """
+        if not self._order:
+            return
+        m = 2 * (max(self._order) + 1)
+        W = self._W[:m]
+        mask = self._active.mask
+        Wu, Wv = W @ u, W @ v
+        alpha, beta = np.zeros(m), np.zeros(m)
+        for k in self._order:
+            alpha[2 * k + 1], beta[2 * k + 1] = Wu[2 * k], Wv[2 * k]
+            W[2 * k + 1] += alpha[2 * k + 1] * u - beta[2 * k + 1] * v
+        uu, uv, vv = float(u @ u), float(u @ v), float(v @ v)
+        self._gram[:m, :m] += _rank2_gram(Wu, Wv, alpha, beta, uu, uv, vv)
+        A = self._active.gram
+        if A.shape[0] == m:
+            um, vm = np.where(mask, u, 0.0), np.where(mask, v, 0.0)
+            A += _rank2_gram(W @ um - alpha * float(u @ um) + beta * float(v @ um),
+                             W @ vm - alpha * float(u @ vm) + beta * float(v @ vm),
+                             alpha, beta, float(u @ um), float(u @ vm), float(v @ vm))
+        elif A.shape[0]:
+            self._active = ActiveGram(np.zeros(self.n, dtype=bool), np.zeros((0, 0)))
+        keep = []
+        for k in self._order:
+            sy, ss, yy = self._gram[2 * k, 2 * k + 1], self._gram[2 * k, 2 * k], \
+                self._gram[2 * k + 1, 2 * k + 1]
+            if np.isfinite(sy) and sy > 0 and \
+                    sy > self.curvature_tol * np.sqrt(max(ss, 0.0) * max(yy, 0.0)):
+                keep.append(k)
+            else:
+                self.skipped += 1
+        self._order = keep
+        self._coef = None
 
     def set_pairs(self, S: list, Y: list) -> None:
         """Replace the memory by the given pairs (curvature-checked, oldest first)."""
@@ -389,6 +436,16 @@ class DiagonalBFGS:
             step[i] = alpha[i] - beta
         c[si] += step
         return c
+
+
+def _rank2_gram(Wu, Wv, alpha, beta, uu, uv, vv):
+    """Change of ``W W'`` when row ``i`` of ``W`` gains ``alpha_i u - beta_i v``.
+
+    ``Wu``, ``Wv`` are the products of the rows before the change with ``u`` and ``v``.
+    """
+    X = np.outer(Wu, alpha) - np.outer(Wv, beta)
+    ab = np.outer(alpha, beta)
+    return X + X.T + uu * np.outer(alpha, alpha) - uv * (ab + ab.T) + vv * np.outer(beta, beta)
 
 
 class OperatorBFGS:
