@@ -74,12 +74,33 @@ class Pairs:
         if isinstance(delta, Rank2) and self.model is not None:
             model, self.model = self.model, None
             model.correct(delta.u, delta.v)
-            return Pairs(model.S, model.Y, [None] * model.rank, model=model)
+            return ModelPairs(model)
         return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
                      list(self.B0S))
 
     def __len__(self) -> int:
         return len(self.S)
+
+
+class ModelPairs(Pairs):
+    """The pairs a Mono-PQN model holds, read from it (copies made only when asked)."""
+
+    def __init__(self, model: DiagonalBFGS):
+        self.model = model
+
+    S = property(lambda self: self.model.S if self.model is not None else [])
+    Y = property(lambda self: self.model.Y if self.model is not None else [])
+    B0S = property(lambda self: [None] * len(self))
+
+    def __len__(self) -> int:
+        return self.model.rank if self.model is not None else 0
+
+    def add(self, s, y, b0s=None) -> None:
+        raise TypeError("ModelPairs are read-only; add pairs to the model")
+
+    def trim(self, memory: int) -> None:
+        if self.model is not None:
+            self.model.trim(memory)
 
 
 
@@ -276,8 +297,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
             counters.recomputes += 1
-    return LevelOutcome(z, G, reason, it, Pairs(model.S, model.Y, [None] * model.rank,
-                                                model=model))
+    return LevelOutcome(z, G, reason, it, ModelPairs(model))
 
 
 def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:

@@ -260,8 +260,11 @@ class DiagonalBFGS:
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
         mask = self._active.mask
-        new = np.stack([s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)], axis=1)
-        g = rows @ new                                       # (used, 4): one pass
+        # four products with contiguous vectors: BLAS runs a (used, n) x (n, 4) product
+        # several times slower than four matrix-vector products
+        g = np.empty((used, 4))
+        for j, vec in enumerate((s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0))):
+            g[:, j] = rows @ vec
         self._gram[:used, 2 * slot:2 * slot + 2] = g[:, :2]
         self._gram[2 * slot:2 * slot + 2, :used] = g[:, :2].T
         A = self._active.gram
@@ -275,7 +278,7 @@ class DiagonalBFGS:
         return True
 
     def _grow(self, slots: int) -> None:
-        W = np.zeros((2 * slots, self.n))
+        W = np.empty((2 * slots, self.n))      # rows are read only once written
         G = np.zeros((2 * slots, 2 * slots))
         k = self._W.shape[0]
         W[:k] = self._W
