@@ -163,6 +163,10 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     return _prox_fallback(y, dv, W.T @ P, W.T @ N, fallback_iters, tol), info
 
 
+#: Columns of ``W`` gathered at a time when an active-set Gram matrix is formed.
+_BLOCK = 4096
+
+
 @dataclass
 class ActiveGram:
     """``W Lam W'`` of an active set, kept between prox evaluations of one model.
@@ -221,10 +225,16 @@ class _NewtonSystem:
         self.GdQc = Gd @ self.Qc
 
     # ------------------------------------------------------------------ active set
-    def _rows(self, idx, with_h=True):
-        Wi = self.W[:, idx]
-        Di = Wi if self.scalar else Wi / self.d[idx]
-        return Di @ Wi.T, (Wi @ self.y[idx] if with_h else None)
+    def _rows(self, idx):
+        """``W_idx D_idx^-1 W_idx'`` over the columns ``idx``, gathered in blocks of
+        :data:`_BLOCK` columns so memory stays ``O(_BLOCK m)``."""
+        m = self.W.shape[0]
+        M = np.zeros((m, m))
+        for j in range(0, idx.size, _BLOCK):
+            cols = idx[j:j + _BLOCK]
+            Wi = self.W[:, cols]
+            M += (Wi if self.scalar else Wi / self.d[cols]) @ Wi.T
+        return M
 
     def _gram_of(self, mask, prev, flips):
         """``(W Lam W', flips)`` of ``mask``, from ``prev = (mask, gram)`` when cheaper."""
@@ -236,13 +246,13 @@ class _NewtonSystem:
                 M = prev[1].copy()
                 on, off = flip[mask[flip]], flip[~mask[flip]]
                 if on.size:
-                    M += self._rows(on, False)[0]
+                    M += self._rows(on)
                 if off.size:
-                    M -= self._rows(off, False)[0]
+                    M -= self._rows(off)
                 return M, flips + flip.size
         if 2 * act.size <= n:
-            return self._rows(act, False)[0], 0
-        return self.G - self._rows(np.flatnonzero(~mask), False)[0], 0
+            return self._rows(act), 0
+        return self.G - self._rows(np.flatnonzero(~mask)), 0
 
     def start(self, mask, cache: Optional[ActiveGram]):
         """``(mask, M, h, flips)`` at the start, from the cached active set if it fits."""
