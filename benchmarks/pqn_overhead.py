@@ -13,7 +13,8 @@ arithmetic shows. Bi-PQN's low fidelity is ``D' M D`` with ``M`` diagonal within
 the identity (declared cost 0.1 of a high product). ``b`` has normal entries shifted down
 so that about half the contacts end up active.
 
-For every solver the script solves once (stop rule ``paper``, ``--tol``, at most
+For every solver (BB-PGD, Mono-PQN and Bi-PQN with their defaults, then the two PQN
+solvers keeping ten secant pairs) the script solves once (stop rule ``paper``, ``--tol``, at most
 ``--max-iter`` iterations) and prints the solve's wall time, the time inside the counted
 products (``SolveResult.mvp_time_s``, high and low), the products (high and low), and the
 work outside products per product, ``(time_s - mvp_time_s) / (high + low products)``,
@@ -34,7 +35,10 @@ import lcpbench
 from lcpbench.core.api import run_solver
 from lcpbench.core.context import Budget
 
-SOLVERS = ("bb-pgd", "mono-pqn", "bi-pqn")
+#: BB-PGD first (the baseline of the ratios); the PQN solvers with their defaults (every pair
+#: kept), then with ten pairs: their own work is O(n r) per product, r the pairs kept.
+SOLVERS = ("bb-pgd", "mono-pqn", "bi-pqn", "mono-pqn:memory=10",
+           "bi-pqn:memory=10,inner_memory=10")
 
 
 def contact_jacobian(n: int, rng: np.random.Generator) -> sp.csr_matrix:

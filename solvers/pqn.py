@@ -20,6 +20,16 @@ MVPs per iteration
   handed the solve to Mono-PQN.
 * ``multi-pqn``: as ``bi-pqn`` with the subproblem solved by Bi-PQN on the next
   cheaper operator, recursively.
+
+Work outside products
+---------------------
+O(n r) per iteration (r secant pairs kept): the BFGS models are kept in compact
+form (pairs and their Gram matrices, :class:`~lcpbench.toolkit.quasinewton.DiagonalBFGS`),
+the weighted prox builds its Newton system from Gram matrices
+(:func:`~lcpbench.toolkit.prox.compact_prox`), and a Bi-PQN subproblem continues the
+previous one's model corrected by the rank-two change of ``B``. The solvers' own dense
+algebra runs with BLAS on one thread, entered once per solve; the products (the LCP's
+operators) run with the thread counts in force when the solve began.
 """
 
 from __future__ import annotations

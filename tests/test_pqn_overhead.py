@@ -17,10 +17,9 @@ import scipy.sparse as sp
 import lcpbench
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params, parse_spec
-from lcpbench.toolkit.pqn_levels import (Counters, MonoOptions, ModelPairs, Rank2, mono_level,
-                                         pqn_direction)
+from lcpbench.toolkit.pqn_levels import Counters, MonoOptions, mono_level
 from lcpbench.toolkit.prox import compact_prox
-from lcpbench.toolkit.quasinewton import DiagonalBFGS
+from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Rank2
 
 
 # ------------------------------------------------------------------ the old formulas

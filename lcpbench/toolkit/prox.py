@@ -23,7 +23,12 @@ semiSmoothNewton) with the generalized Jacobian
                [V' Lam D^{-1} U,  -V' Lam C^{-1} V     ]],   Lam = diag(x > 0),
 
 started at 0. Each Newton step costs O(n r + r^3): no product with the LCP
-matrix is ever needed. Safeguards: a step that does not reduce ``||L||`` is
+matrix is ever needed. :func:`compact_prox` takes the factors as coefficients
+over the rows of a matrix ``W`` (``U = W'P``, ``V = W'N``, the PQN models'
+compact form) and builds the Newton system from Gram matrices of ``W``: one
+pass over ``W`` per Newton step, the active set's Gram matrix updated by the
+rows that changed (and kept from one evaluation to the next, :class:`ActiveGram`),
+no ``n x r`` copy. Safeguards: a step that does not reduce ``||L||`` is
 damped by halving; if Newton has not converged after ``max_iter`` steps, the
 n-dimensional QP is solved instead by an accelerated projected gradient method
 in the metric's own O(n r) products (reported as a fallback). For ``r = 0`` the

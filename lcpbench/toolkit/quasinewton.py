@@ -22,13 +22,15 @@ skipped, as in the authors' code, so ``B`` stays positive definite whenever
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 import numpy as np
 
 from lcpbench.toolkit.prox import ActiveGram
 
-__all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "bb2_scale", "free_secant_pair"]
+__all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "Pairs", "ModelPairs", "Rank2",
+           "bb2_scale", "free_secant_pair"]
 
 
 def bb2_scale(s: np.ndarray, y: np.ndarray) -> float:
@@ -497,3 +499,79 @@ class OperatorBFGS:
         self.U = np.column_stack([self.U, u])
         self.V = np.column_stack([self.V, v])
         return u, v
+
+
+@dataclass
+class Pairs:
+    """Secant pairs ``Q s_i = y_i`` (oldest first) with optional cached ``B0 s_i``.
+
+    ``model``: the Mono-PQN model that holds exactly these pairs (a level hands
+    it on so the next subproblem continues it instead of rebuilding it).
+    """
+
+    S: list = field(default_factory=list)
+    Y: list = field(default_factory=list)
+    B0S: list = field(default_factory=list)
+    model: Optional[DiagonalBFGS] = field(default=None, repr=False, compare=False)
+
+    def add(self, s: np.ndarray, y: np.ndarray, b0s: Optional[np.ndarray] = None) -> None:
+        self.S.append(s)
+        self.Y.append(y)
+        self.B0S.append(b0s)
+
+    def trim(self, memory: int) -> None:
+        """Keep the newest ``memory`` pairs (0 keeps all)."""
+        if memory and len(self.S) > memory:
+            del self.S[:-memory], self.Y[:-memory], self.B0S[:-memory]
+            if self.model is not None:
+                self.model.trim(memory)
+
+    def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> "Pairs":
+        """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept).
+
+        With a rank-two ``delta`` (:class:`Rank2`) and a model, the model is
+        corrected in place in ``O(n r)`` and handed on (its pairs that lose the
+        curvature test dropped, as rebuilding it would).
+        """
+        if isinstance(delta, Rank2) and self.model is not None:
+            model, self.model = self.model, None
+            model.correct(delta.u, delta.v)
+            return ModelPairs(model)
+        return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
+                     list(self.B0S))
+
+    def __len__(self) -> int:
+        return len(self.S)
+
+
+class ModelPairs(Pairs):
+    """The pairs a Mono-PQN model holds, read from it (copies made only when asked)."""
+
+    def __init__(self, model: DiagonalBFGS):
+        self.model = model
+
+    S = property(lambda self: self.model.S if self.model is not None else [])
+    Y = property(lambda self: self.model.Y if self.model is not None else [])
+    B0S = property(lambda self: [None] * len(self))
+
+    def __len__(self) -> int:
+        return self.model.rank if self.model is not None else 0
+
+    def add(self, s, y, b0s=None) -> None:
+        raise TypeError("ModelPairs are read-only; add pairs to the model")
+
+    def trim(self, memory: int) -> None:
+        if self.model is not None:
+            self.model.trim(memory)
+
+
+
+@dataclass(frozen=True)
+class Rank2:
+    """``v -> u u'v - w w'v``: the change of a BFGS model by one update."""
+
+    u: np.ndarray
+    v: np.ndarray
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return self.u * float(self.u @ x) - self.v * float(self.v @ x)
