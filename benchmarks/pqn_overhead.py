@@ -18,7 +18,7 @@ solvers keeping ten secant pairs) the script solves once (stop rule ``paper``, `
 ``--max-iter`` iterations) and prints the solve's wall time, the time inside the counted
 products (``SolveResult.mvp_time_s``, high and low), the products (high and low), and the
 work outside products per product, ``(time_s - mvp_time_s) / (high + low products)``,
-with its ratio to BB-PGD's measured in the same run.
+with its ratio to BB-PGD's measured in the same run (the best of ``--repeat`` solves).
 """
 
 from __future__ import annotations
@@ -78,7 +78,14 @@ def measure(lcp: lcpbench.LCP, solver: str, tol: float, max_iter: int) -> dict:
             "rank": res.info.get("rank")}
 
 
-def table(ns: list[int], tol: float, max_iter: int) -> None:
+def best_of(lcp: lcpbench.LCP, solver: str, tol: float, max_iter: int, repeat: int) -> dict:
+    """The repetition with the least time outside products (other jobs on a shared machine
+    only ever add time)."""
+    return min((measure(lcp, solver, tol, max_iter) for _ in range(repeat)),
+               key=lambda r: r["outside_per_product"])
+
+
+def table(ns: list[int], tol: float, max_iter: int, repeat: int) -> None:
     print("| n | solver | status | iterations | high | low | rank | solve s | in products s "
           "| outside per product ms | ratio to bb-pgd |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -86,7 +93,7 @@ def table(ns: list[int], tol: float, max_iter: int) -> None:
         measure(contact_lcp(1000, seed=1), s, tol, max_iter)
     for n in ns:
         lcp = contact_lcp(n)
-        rows = [measure(lcp, s, tol, max_iter) for s in SOLVERS]
+        rows = [best_of(lcp, s, tol, max_iter, repeat) for s in SOLVERS]
         base = rows[0]["outside_per_product"]
         for r in rows:
             print(f"| {n:.0e} | {r['solver']} | {r['status']} | {r['iterations']} | {r['mvps']} "
@@ -101,6 +108,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, action="append", help="sizes (default 1e5 and 1e6)")
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--max-iter", type=int, default=200)
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="solves per solver and size; the least time outside products is kept")
     ap.add_argument("--profile", metavar="SOLVER", help="cProfile one solve of SOLVER instead")
     ap.add_argument("--blas-threads", choices=("one", "default"), default="one",
                     help="BLAS threads for the whole run (default one: on a shared machine a "
@@ -117,7 +126,7 @@ def main() -> None:
         prof.disable()
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
         return
-    table(ns, args.tol, args.max_iter)
+    table(ns, args.tol, args.max_iter, args.repeat)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from lcpbench.toolkit.prox import ActiveGram
+from lcpbench.toolkit.prox import ActiveGram, row_products
 
 __all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "Pairs", "ModelPairs", "Rank2",
            "bb2_scale", "free_secant_pair"]
@@ -262,11 +262,7 @@ class DiagonalBFGS:
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
         mask = self._active.mask
-        # four products with contiguous vectors: BLAS runs a (used, n) x (n, 4) product
-        # several times slower than four matrix-vector products
-        g = np.empty((used, 4))
-        for j, vec in enumerate((s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0))):
-            g[:, j] = rows @ vec
+        g = row_products(rows, (s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)))
         self._gram[:used, 2 * slot:2 * slot + 2] = g[:, :2]
         self._gram[2 * slot:2 * slot + 2, :used] = g[:, :2].T
         A = self._active.gram
@@ -306,7 +302,7 @@ class DiagonalBFGS:
         m = 2 * (max(self._order) + 1)
         W = self._W[:m]
         mask = self._active.mask
-        Wu, Wv = W @ u, W @ v
+        Wu, Wv = row_products(W, (u, v)).T
         alpha, beta = np.zeros(m), np.zeros(m)
         for k in self._order:
             alpha[2 * k + 1], beta[2 * k + 1] = Wu[2 * k], Wv[2 * k]
@@ -316,8 +312,9 @@ class DiagonalBFGS:
         A = self._active.gram
         if A.shape[0] == m:
             um, vm = np.where(mask, u, 0.0), np.where(mask, v, 0.0)
-            A += _rank2_gram(W @ um - alpha * float(u @ um) + beta * float(v @ um),
-                             W @ vm - alpha * float(u @ vm) + beta * float(v @ vm),
+            Wum, Wvm = row_products(W, (um, vm)).T
+            A += _rank2_gram(Wum - alpha * float(u @ um) + beta * float(v @ um),
+                             Wvm - alpha * float(u @ vm) + beta * float(v @ vm),
                              alpha, beta, float(u @ um), float(u @ vm), float(v @ vm))
         elif A.shape[0]:
             self._active = ActiveGram(np.zeros(self.n, dtype=bool), np.zeros((0, 0)))
