@@ -1,4 +1,8 @@
-"""BFGS Hessian models in the form ``B = B0 + U U' - V V'`` (unrolled storage).
+"""BFGS Hessian models in the form ``B = B0 + U U' - V V'`` (unrolled factors).
+
+:class:`DiagonalBFGS` keeps its pairs in compact form (the pairs and their Gram matrix)
+and the unrolled factors as small coefficient matrices over the pairs, so its work per
+iteration is O(n r); :class:`OperatorBFGS` stores the factors themselves.
 
 The BFGS update ``B+ = B + y y'/(y's) - (B s)(B s)'/(s'B s)`` adds the column
 ``y / sqrt(y's)`` to ``U`` and ``B s / sqrt(s'B s)`` to ``V`` (Nocedal & Wright,
