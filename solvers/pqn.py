@@ -20,6 +20,16 @@ MVPs per iteration
   handed the solve to Mono-PQN.
 * ``multi-pqn``: as ``bi-pqn`` with the subproblem solved by Bi-PQN on the next
   cheaper operator, recursively.
+
+Work outside products
+---------------------
+O(n r) per iteration (r secant pairs kept): the BFGS models are kept in compact
+form (pairs and their Gram matrices, :class:`~lcpbench.toolkit.quasinewton.DiagonalBFGS`),
+the weighted prox builds its Newton system from Gram matrices
+(:func:`~lcpbench.toolkit.prox.compact_prox`), and a Bi-PQN subproblem continues the
+previous one's model corrected by the rank-two change of ``B``. The solvers' own dense
+algebra runs with BLAS on one thread, entered once per solve; the products (the LCP's
+operators) run with the thread counts in force when the solve began.
 """
 
 from __future__ import annotations
@@ -33,6 +43,7 @@ import numpy as np
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
+from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.toolkit.pqn_levels import (
     BiOptions,
@@ -247,8 +258,10 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
         seed = seed or Pairs()
         seed.add(*pair)
         ctx.info["free_pair"] = True
-    out = mono_level(ctx.A.matvec, x, g, stop, sys.maxsize, p, counters,
-                     seed=seed, exact_gradient=stop.exact)
+    apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
+    with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
+        out = mono_level(apply, x, g, stop, sys.maxsize, p, counters, seed=seed,
+                         exact_gradient=exact)
     ctx.info["rank"] = len(out.pairs)
     return _finish(ctx, out, counters, out.pairs)
 
@@ -273,22 +286,24 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
                ) -> SolveResult:
     x = np.maximum(ctx.x0, 0.0)
     counters = Counters()
-    lows = [ctx.low[k].matvec for k in names]
+    lows = [with_current_blas_threads(ctx.low[k].matvec) for k in names]
     carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
     stop = ConfirmedReport(ctx)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
     from_low = p.start == "low"
     level_state = None
-    if from_low:
-        x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, stop.exact,
-                                                   floor)
-    else:
-        g = ctx.A @ x + ctx.b
-    out, state = bi_level(ctx.A.matvec, lows, x, g, stop, sys.maxsize, p,
-                          counters, state=level_state, warm_start=not from_low,
-                          exact_gradient=stop.exact, floor=floor, model_error=rho,
-                          prev_residual=r_prev, fallback_seed=carried)
+    apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
+    with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
+        if from_low:
+            x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, exact,
+                                                       floor)
+        else:
+            g = exact(x)
+        out, state = bi_level(apply, lows, x, g, stop, sys.maxsize, p,
+                              counters, state=level_state, warm_start=not from_low,
+                              exact_gradient=exact, floor=floor, model_error=rho,
+                              prev_residual=r_prev, fallback_seed=carried)
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
     return _finish(ctx, out, counters, out.pairs)

@@ -17,7 +17,7 @@ from functools import cache
 
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["one_blas_thread", "on_one_blas_thread"]
+__all__ = ["one_blas_thread", "on_one_blas_thread", "with_current_blas_threads"]
 
 
 @cache
@@ -45,4 +45,26 @@ def on_one_blas_thread(method: Callable) -> Callable:
     def wrapped(*args, **kwargs):
         with one_blas_thread():
             return method(*args, **kwargs)
+    return wrapped
+
+
+def with_current_blas_threads(func: Callable) -> Callable:
+    """``func`` run with the BLAS thread counts in force now, whatever limit is active later.
+
+    A solver runs its own small dense algebra inside one :func:`one_blas_thread`
+    context entered once per solve (entering a limit costs tens of microseconds,
+    too much per prox evaluation); the products it hands out of that context
+    (the LCP's operators) are wrapped here, so an operator that gains from
+    threads keeps them.  Each call enters one limit (microseconds beside a
+    product).
+    """
+    pools = _threadpools().select(user_api="blas")
+    counts = {lib.prefix: lib.num_threads for lib in pools.lib_controllers}
+    if not counts or all(c == 1 for c in counts.values()):
+        return func
+
+    @functools.wraps(func)
+    def wrapped(*args, **kwargs):
+        with _threadpools().limit(limits=counts):
+            return func(*args, **kwargs)
     return wrapped

@@ -31,41 +31,13 @@ import numpy as np
 
 from lcpbench.core.residuals import kkt_abs
 from lcpbench.core.specs import Bounds, CheckedParams
-from lcpbench.toolkit.prox import weighted_prox
-from lcpbench.toolkit.quasinewton import DiagonalBFGS, OperatorBFGS
+from lcpbench.toolkit.prox import compact_prox
+from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, OperatorBFGS, Pairs, Rank2
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
-__all__ = ["Pairs", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
+__all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
            "bi_level", "low_start", "pqn_direction", "optimal_step", "model_check",
            "forcing_term"]
-
-
-@dataclass
-class Pairs:
-    """Secant pairs ``Q s_i = y_i`` (oldest first) with optional cached ``B0 s_i``."""
-
-    S: list = field(default_factory=list)
-    Y: list = field(default_factory=list)
-    B0S: list = field(default_factory=list)
-
-    def add(self, s: np.ndarray, y: np.ndarray, b0s: Optional[np.ndarray] = None) -> None:
-        self.S.append(s)
-        self.Y.append(y)
-        self.B0S.append(b0s)
-
-    def trim(self, memory: int) -> None:
-        """Keep the newest ``memory`` pairs (0 keeps all)."""
-        if memory and len(self.S) > memory:
-            del self.S[:-memory], self.Y[:-memory], self.B0S[:-memory]
-
-    def corrected(self, delta: Callable[[np.ndarray], np.ndarray]) -> Pairs:
-        """Pairs for a changed Hessian ``Q + Delta``: ``Y <- Y + Delta S`` (``B0 S`` kept)."""
-        return Pairs(list(self.S), [y + delta(s) for s, y in zip(self.S, self.Y)],
-                     list(self.B0S))
-
-    def __len__(self) -> int:
-        return len(self.S)
-
 
 
 @dataclass(frozen=True)
@@ -142,9 +114,10 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoO
     prox step does not descend (an inexact prox); returns None when no descent
     direction exists (``z`` is stationary).
     """
-    d, U, V = model.factors()
+    d, W, P, N, gram = model.compact()
     y = z - model.apply_H(G)
-    zhat, info = weighted_prox(y, d, U, V, tol=opts.prox_tol, max_iter=opts.prox_max_iter)
+    zhat, info = compact_prox(y, d, W, P, N, gram, active=model.active, tol=opts.prox_tol,
+                              max_iter=opts.prox_max_iter)
     counters.prox_newton_iters += info.newton_iters
     counters.prox_damped += info.damped
     counters.prox_fallbacks += int(info.fallback)
@@ -220,9 +193,14 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         a second report of the same iterate would look like stagnation).
     """
     mem = opts.memory if memory is None else memory
-    model = DiagonalBFGS(z.shape[0], memory=mem or None, scaling=opts.scaling, gamma=opts.gamma)
-    if seed is not None and len(seed):
-        model.set_pairs(seed.S, seed.Y)
+    if seed is not None and seed.model is not None and \
+            seed.model.memory == (mem or max(z.shape[0], 1)):
+        model, seed.model = seed.model, None          # continue the handed-on model
+    else:
+        model = DiagonalBFGS(z.shape[0], memory=mem or None, scaling=opts.scaling,
+                             gamma=opts.gamma)
+        if seed is not None and len(seed):
+            model.set_pairs(seed.S, seed.Y)
     it = 0
     reason, ray = "max_iter", None
     while True:
@@ -247,8 +225,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
             counters.recomputes += 1
-    return LevelOutcome(z, G, reason, it, Pairs(list(model.S), list(model.Y),
-                                                [None] * len(model.S)), ray)
+    return LevelOutcome(z, G, reason, it, ModelPairs(model), ray)
 
 
 def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
@@ -395,10 +372,11 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             break
         it += 1
         s, y = eta * p, eta * Qp
-        b0p = base(p) if Bp is None else Bp - model.correction(p)
-        Bs = eta * (b0p + model.correction(p))
+        corr = model.correction(p)
+        b0p = base(p) if Bp is None else Bp - corr
+        Bs = eta * (b0p + corr)
         # the model check: the new high gradient is known; how well did B predict it?
-        rho = model_check(Qp, b0p + model.correction(p))
+        rho = model_check(Qp, b0p + corr)
         counters.model_errors.append(rho)
         old_model = model
         model = _copy_model(model)
@@ -408,11 +386,13 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         else:
             hi_pairs.add(s, y, eta * b0p)
         diag.add_pair(s, y)
+        delta: Optional[Callable[[np.ndarray], np.ndarray]] = None if uv is None else Rank2(*uv)
         if opts.memory and len(hi_pairs) > opts.memory:
             hi_pairs.trim(opts.memory)
             model = _rebuild(base, n, hi_pairs)
+            delta = _delta(old_model, model)
         # carry the subproblem's pairs to the next subproblem: Y <- Y + (B_new - B_old) S
-        inner_state = _carry(inner_state_new, _delta(old_model, model), opts)
+        inner_state = _carry(inner_state_new, delta, opts)
         z, G = z_new, G_new
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
@@ -540,13 +520,16 @@ def _delta(old: OperatorBFGS, new: OperatorBFGS) -> Callable[[np.ndarray], np.nd
     return lambda v: new.correction(v) - old.correction(v)
 
 
-def _carry(inner_state, delta: Callable, opts: BiOptions):
-    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change."""
+def _carry(inner_state, delta: Optional[Callable], opts: BiOptions):
+    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change.
+
+    ``delta`` None: the model did not change (a skipped update).
+    """
     if isinstance(inner_state, Pairs):
-        out = inner_state.corrected(delta)
+        out = inner_state if delta is None else inner_state.corrected(delta)
         out.trim(opts.inner_memory)
         return out
-    if isinstance(inner_state, dict):
+    if isinstance(inner_state, dict) and delta is not None:
         # the inner level's Hessian is this level's B: its high pairs see the change;
         # its base (a lower fidelity) and its own inner pairs are unaffected.
         return {"pairs": inner_state["pairs"].corrected(delta), "inner": inner_state["inner"],
