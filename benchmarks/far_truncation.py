@@ -29,7 +29,7 @@ from common import packed_lattice
 from low_fidelity import build, dense_sym
 
 from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.bim_split import split_mobility
+from lcpbench.problems.suspension.bim import split_mobility
 
 
 def main() -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lcpbench.problems.suspension.bim import BimConvergenceWarning, BimMobility
-from lcpbench.problems.suspension.bim_gmres import relaxed_gmres
+from lcpbench.problems.suspension.bim.gmres import relaxed_gmres
 from threadpoolctl import threadpool_info, threadpool_limits
 
 

@@ -11,8 +11,9 @@ import scipy.sparse as sp
 
 from lcpbench.core.api import run_solver
 from lcpbench.cli import main
-from lcpbench.problems.suspension.contacts import (
-    Contacts, build_contact_problem, contact_lcp, max_overlap, parse_fidelity)
+from lcpbench.problems.suspension.contacts import Contacts, max_overlap
+from lcpbench.problems.suspension.fidelity import parse_fidelity
+from lcpbench.problems.suspension.problem import build_contact_problem, contact_lcp
 from lcpbench.problems.suspension.scene import (
     LatticeParams, LatticeScene, bisect_scale)
 from lcpbench.core.registry import make_scene
@@ -159,7 +160,7 @@ def test_a_for_the_scene_model_is_symmetric_psd():
 
 
 def test_scene_step_uses_eq_defaandb_and_moves_with_u_nc_plus_mdx():
-    from lcpbench.problems.suspension.contacts import resolve_mobility
+    from lcpbench.problems.suspension.problem import resolve_mobility
 
     scene = LatticeScene(2, model=MODEL, seed=4)
     for _ in range(10):                         # until the cluster presses together
@@ -198,9 +199,15 @@ def test_low_fidelity_operators_carry_measured_costs():
 
 
 def test_parse_fidelity_names():
-    assert parse_fidelity("p4e6", 8, 1e-8) == {"model": "bim", "p": 4, "eps_gmres": 1e-6}
-    assert parse_fidelity("p3", 8, 1e-8) == {"model": "bim", "p": 3, "eps_gmres": 1e-8}
-    assert parse_fidelity("rpy", 8, 1e-8)["model"] == "rpy"
+    assert parse_fidelity("p4e6", 8, 1e-8).knobs() == {"model": "bim", "p": 4,
+                                                       "eps_gmres": 1e-6}
+    assert parse_fidelity("p3", 8, 1e-8).knobs() == {"model": "bim", "p": 3, "eps_gmres": 1e-8}
+    assert parse_fidelity("rpy", 8, 1e-8).model == "rpy"
+    # p and eps_gmres are checked where the name is parsed, naming the fidelity
+    with pytest.raises(ValueError, match="fidelity 'p0': p = 0 must be an integer"):
+        parse_fidelity("p0", 8, 1e-8)
+    with pytest.raises(ValueError, match=r"fidelity 'p4e0': eps_gmres = 1.0 must be"):
+        parse_fidelity("p4e0", 8, 1e-8)
     with pytest.raises(ValueError, match="unknown fidelity 'q4'"):
         parse_fidelity("q4", 8, 1e-8)
 

@@ -1,13 +1,22 @@
 """Pair set-up of the boundary-integral mobility: how each pair of spheres interacts.
 
-Built once per configuration by :class:`bim.BimMobility` and reused by every forward and
-transposed product: which ordered pairs are summed by direct quadrature on which source
-grid at each accuracy rung of relaxed GMRES, which get exact-expansion blocks (stored
+Built once per configuration by :class:`.setup.BimSetup` and reused by every forward,
+transposed and split product: which ordered pairs are summed by direct quadrature on which
+source grid at each accuracy rung of relaxed GMRES, which get exact-expansion blocks (stored
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
+
+The stored near-field blocks are built directly here (:meth:`PairPlan._build_blocks`, one
+exact-expansion response per pair).  This is the one place where precomputed rotation
+tables would enter: a block of a pair at scaled distance ``rho`` along a direction is the
+block of a tabulated pair at ``rho`` along the z axis rotated into that direction, so a
+table lookup and a rotation of the coefficients would replace the direct build, and
+nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`, :mod:`.adjoint`) changes.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -15,14 +24,14 @@ from .kernels import real_block_columns, traction_response
 from .sphere_vsh import (
     SphereGrid,
     VSHBasis,
-    _expansion_factors,
+    expansion_factors,
     grid_levels,
     quadrature_radius,
     sampled_basis,
     sphere_grid,
 )
 
-__all__ = ["PairPlan", "PROJECT_RHO", "RELAX_STEP", "csr"]
+__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "csr"]
 
 PROJECT_RHO = 3.0
 """Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
@@ -34,6 +43,28 @@ cluster (gaps >= 0.1a) at p = 6: zone radii 2, 3, 4, 6 give asymmetries 6.7e-4, 
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
+
+
+class Grids(NamedTuple):
+    """The grids and bases of one order ``p`` that the pair plan is built on.
+
+    Attributes
+    ----------
+    p : int
+        Spherical-harmonic order.
+    grid, near_grid : SphereGrid
+        Native order-p grid and the finer grid of the projected near field.
+    near_proj : ndarray or None
+        Projection from the finer grid onto degree p (None: node sampling).
+    basis : VSHBasis
+        Vector spherical harmonics of order p (analysis, synthesis, complex form).
+    """
+
+    p: int
+    grid: SphereGrid
+    near_grid: SphereGrid
+    near_proj: np.ndarray | None
+    basis: VSHBasis
 
 
 def csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -57,22 +88,14 @@ class PairPlan:
     ----------
     centers, radii : ndarray
         Checked configuration, shapes (M, 3) and (M,).
-    p : int
-        Spherical-harmonic order.
+    grids : Grids
+        The order, the native and near-field grids, the near-field projection and the basis.
     quad_tol : float
         Quadrature accuracy of the full-accuracy rung.
     far : {"direct", "fmm"}
         Far-field engine (the FMM works on the native grid and is not relaxed).
-    grid, near_grid : SphereGrid
-        Native order-p grid and the finer grid of the projected near field.
-    near_proj : ndarray or None
-        Projection from the finer grid onto degree p (None: node sampling).
-    basis : VSHBasis
-        Vector spherical harmonics of order p (analysis, synthesis, complex form).
     near_block_mb : float
         Memory budget of the stored blocks.
-    all_expansion : bool
-        Put every pair in the expansion group (for testing).
 
     Attributes
     ----------
@@ -98,19 +121,17 @@ class PairPlan:
         With ``far="fmm"``: the native-grid ranges removed from the FMM sum.
     """
 
-    def __init__(self, centers: np.ndarray, radii: np.ndarray, p: int, quad_tol: float,
-                 far: str, grid: SphereGrid, near_grid: SphereGrid,
-                 near_proj: np.ndarray | None, basis: VSHBasis, near_block_mb: float,
-                 all_expansion: bool = False) -> None:
-        self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], p
+    def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
+                 quad_tol: float, far: str, near_block_mb: float) -> None:
+        self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
         self.quad_tol, self.far = quad_tol, far
-        self.grid, self.near_grid, self.near_proj = grid, near_grid, near_proj
-        self.N = grid.size
-        self.basis = basis
+        self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
+        self.N = grids.grid.size
+        self.basis = grids.basis
         self.near_block_mb = float(near_block_mb)
-        self._classify(all_expansion)
+        self._classify()
 
-    def _classify(self, all_expansion: bool) -> None:
+    def _classify(self) -> None:
         """Pair classes, tolerance ladder, blocks and source points (see the class)."""
         M, p = self.M, self.p
         c, r = self.centers, self.radii
@@ -145,9 +166,6 @@ class PairPlan:
             level_of[(level_of >= 0) & (level_of < native)] = native
         if self.near_proj is not None:     # the projected zone: expansions at any tolerance
             level_of[(rho < PROJECT_RHO) & (level_of >= 0)] = -2
-        if all_expansion:
-            level_of[:] = -2
-            np.fill_diagonal(level_of, -1)
         self.level_radii = dict(zip(levels, radius.tolist()))
         ladder_levels = [level_of]
         for tol in tols[1:]:
@@ -241,7 +259,7 @@ class PairPlan:
         nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
         blocked, rest = pairs[:nb], pairs[nb:]
         blocked.sort()                                     # grouped by target sphere
-        fac = np.ascontiguousarray(_expansion_factors(p))
+        fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
         to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
                    False: b.A}
