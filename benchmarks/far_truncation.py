@@ -1,4 +1,4 @@
-"""The distance-split low fidelity (:mod:`bim_split`): error and block work per far-field degree.
+"""The distance-split low fidelity (:mod:`bim.split`): error and block work per far-field degree.
 
 Usage::
 

@@ -287,7 +287,7 @@ def test_levels_and_blocks_agree_with_all_expansions():
     s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
     B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_upsample=1, quad_tol=1e-300)
     # stored blocks act in coefficients (their output's nodal complement never reaches a
-    # velocity, bim_pairs), so compare the outputs' degree <= p parts
+    # velocity, bim/pairs.py), so compare the outputs' degree <= p parts
     Ap = vsh_basis(6).A
     ya, yb = ((Ap @ y.reshape(A.M, -1).T).T for y in (A.apply_bie(s), B.apply_bie(s)))
     assert np.abs(ya - yb).max() <= 20 * A.quad_tol * np.abs(s).max()
@@ -361,7 +361,7 @@ def test_projected_blocks_equal_on_the_fly_projection():
 
 
 def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
-    """Stored blocks keep only their output's degree <= p part (bim_pairs); with node-sampled
+    """Stored blocks keep only their output's degree <= p part (bim/pairs.py); with node-sampled
     near fields the nodal output has more, and the mobility must not see it: the product
     equals the one with every pair evaluated on the fly at the nodes."""
     c = _random_cluster(5, 5, 6.0)

@@ -1,5 +1,5 @@
 """Tests of the relaxed GMRES driver of the boundary-integral mobility
-(:func:`bim_gmres.relaxed_gmres`) and of the solves that use it."""
+(:func:`bim.gmres.relaxed_gmres`) and of the solves that use it."""
 
 from __future__ import annotations
 

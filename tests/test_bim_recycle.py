@@ -1,4 +1,4 @@
-"""Krylov recycling of the boundary-integral solves (problems/suspension/bim_recycle.py)
+"""Krylov recycling of the boundary-integral solves (problems/suspension/bim/recycle.py)
 and the paired forward/transposed product of the mobility."""
 
 import numpy as np

@@ -135,9 +135,9 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     qn_memory : bool
         Start each PQN solve's quasi-Newton model from the previous step's
         secant pairs, mapped onto the new contacts by pair identity (the
-        scene's ``carry_memory``); other solvers ignore it. On by default: it
-        cut Mono-PQN's mean E-MVPs per step by a third to a half on the
-        lattice runs of docs/benchmarks.md. Part of the simulation's settings:
+        scene's ``carry_memory``); other solvers ignore it. On by default (what
+        it saves: docs/benchmarks.md, "Quasi-Newton memory across time steps").
+        Part of the simulation's settings:
         a resume with the other choice is refused (simulations stored before
         the switch existed ran without the memory).
     progress : bool

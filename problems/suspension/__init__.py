@@ -20,7 +20,6 @@ Two models are available through :func:`mobility`:
 
 from __future__ import annotations
 
-import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from .geometry import check_configuration, check_order, check_tolerance, check_viscosity

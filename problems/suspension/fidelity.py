@@ -11,7 +11,7 @@ Adding a low fidelity: write its mobility (a ``LinearOperator`` of shape ``(6M, 
 new module, or nothing when it combines existing ones) and register its kind with
 :func:`register_fidelity` (here, or in the module that defines it).  Nothing else changes:
 scenes, ``lcpbench generate --low`` and the contact problem find it by name
-(``tests/test_scene.py::test_a_new_fidelity_is_two_places`` is the worked example).
+(``tests/test_scene.py::test_a_new_low_fidelity_is_one_registration`` is the worked example).
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from .geometry import check_configuration, check_order, check_tolerance, check_viscosity
 
-__all__ = ["Fidelity", "FidelityKind", "Configuration", "register_fidelity", "fidelity_kinds",
-           "parse_fidelity", "build_mobility", "self_mobility"]
+__all__ = ["Fidelity", "FidelityKind", "Configuration", "register_fidelity",
+           "unregister_fidelity", "fidelity_kinds", "parse_fidelity", "build_mobility",
+           "self_mobility"]
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,11 @@ def register_fidelity(kind: FidelityKind) -> FidelityKind:
     re.compile(kind.pattern)
     _KINDS[kind.name] = kind
     return kind
+
+
+def unregister_fidelity(name: str) -> None:
+    """Remove a registered kind (nothing happens for an unknown name)."""
+    _KINDS.pop(name, None)
 
 
 def fidelity_kinds() -> dict[str, FidelityKind]:

@@ -110,10 +110,8 @@ class LatticeParams(CheckedParams):
         radius), so that a correct solve never makes spheres touch, the
         boundary-integral model (which refuses overlapping spheres) can be
         evaluated at every step, and the active contacts sit where that model
-        still means something: at gap 0.1a the p = 8 squeeze mobility of two
-        spheres is within 7% of the exact series, at 0.01a its relative error is
-        about 3 (docs/mobility.md; measured with
-        ``benchmarks/mobility_accuracy.py``).
+        still means something (docs/mobility.md, "Measured choices behind the
+        defaults").
     """
 
     m: Annotated[int, Bounds(ge=1)] = 3
@@ -444,9 +442,8 @@ class LatticeScene:
             secant pairs (:meth:`carry_memory`; the PQN solvers use it, others
             ignore it) and keep this solve's pairs for the next step. Off by
             default so that a stepped scene follows the trajectory ``lcpbench
-            generate`` stores; ``lcpbench simulate`` turns it on (it saves
-            PQN solvers a third to a half of their MVPs: docs/benchmarks.md,
-            "Quasi-Newton memory across time steps").
+            generate`` stores; ``lcpbench simulate`` turns it on (what it saves:
+            docs/benchmarks.md, "Quasi-Newton memory across time steps").
         params : dict, optional
             Extra solver parameters.
         lows : list of str, optional

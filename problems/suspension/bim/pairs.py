@@ -37,9 +37,8 @@ PROJECT_RHO = 3.0
 """Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
 with the projected near field, whatever the quadrature tolerance, so that the
 discretisation does not change with ``eps_gmres``; beyond, values at the nodes
-(quadrature, or expansions at tight tolerances).  Measured on a packed 27-sphere
-cluster (gaps >= 0.1a) at p = 6: zone radii 2, 3, 4, 6 give asymmetries 6.7e-4, 2.2e-4,
-1.9e-4, 1.9e-4."""
+(quadrature, or expansions at tight tolerances).  The measured choice of the radius:
+docs/mobility.md, "Measured choices behind the defaults"."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -133,6 +132,20 @@ class PairPlan:
 
     def _classify(self) -> None:
         """Pair classes, tolerance ladder, blocks and source points (see the class)."""
+        level_of, ladder_levels = self._levels()
+        self._build_blocks()
+        level_of = np.where(self.blocked, -2, level_of)
+        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
+        slot = self._sources(ladder_levels)
+        self._ranges(level_of, ladder_levels, slot)
+        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(self.levels)}
+        self.n_far_pairs = int((level_of >= 0).sum())
+        self.n_near_pairs = int((self.level_of == -2).sum())
+
+    def _levels(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The source level of every ordered pair at full accuracy (``level_of``: -1 self,
+        -2 expansion, else the index in ``levels``) and at every rung of the tolerance
+        ladder."""
         M, p = self.M, self.p
         c, r = self.centers, self.radii
         levels = grid_levels(p)
@@ -173,10 +186,14 @@ class PairPlan:
             ladder_levels.append(np.where(level_of == -2, -2, lv))   # expansion pairs stay
         self.levels = levels
         self.level_of = level_of
-        self._build_blocks()
-        level_of = np.where(self.blocked, -2, level_of)
-        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
-        # sources per level: the spheres any rung of the ladder uses at that level
+        return level_of, ladder_levels
+
+    def _sources(self, ladder_levels: list[np.ndarray]) -> np.ndarray:
+        """Source points and weights of every level (the spheres any rung sums on it) and
+        the synthesis of the upsampled levels; returns each sphere's first point per level
+        (-1 when it is not a source there)."""
+        M, p, levels, native = self.M, self.p, self.levels, self.native
+        c, r = self.centers, self.radii
         self.lvl_spheres, self.lvl_base = [], []
         base = 0
         for L, q in enumerate(levels):
@@ -200,9 +217,16 @@ class PairPlan:
             slot[L, J] = b0 + np.arange(J.size) * g.size
         self.src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
         self.synth = [None if q == p or self.lvl_spheres[L].size == 0
-                       else np.ascontiguousarray(sampled_basis(p, q).T)
-                       for L, q in enumerate(levels)]
-        nq = np.array([sphere_grid(q).size for q in levels], dtype=np.int64)
+                      else np.ascontiguousarray(sampled_basis(p, q).T)
+                      for L, q in enumerate(levels)]
+        return slot
+
+    def _ranges(self, level_of: np.ndarray, ladder_levels: list[np.ndarray],
+                slot: np.ndarray) -> None:
+        """Per rung, the source ranges each target sphere sums (``dir_ranges``), and with
+        ``far="fmm"`` the native ranges removed from the FMM sum (``fmm_sub``)."""
+        M, native = self.M, self.native
+        nq = np.array([sphere_grid(q).size for q in self.levels], dtype=np.int64)
 
         def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
             ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
@@ -215,12 +239,9 @@ class PairPlan:
             # FMM sums all native points; remove its native self and non-native pairs
             self.dir_ranges = [ranges(level_of, lambda lv: lv > native)]
             self.fmm_sub = ranges(np.where(level_of == native, -2, native),
-                                   lambda lv: lv == native)
+                                  lambda lv: lv == native)
         else:
             self.dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
-        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(levels)}
-        self.n_far_pairs = int((level_of >= 0).sum())
-        self.n_near_pairs = int((self.level_of == -2).sum())
 
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
@@ -233,20 +254,20 @@ class PairPlan:
         per sphere (``block_synth``).  The mobility does not change: the traction equation's
         self part keeps degree <= p fields and their nodal complement apart, and everything
         that reaches another sphere or the velocities is the density's degree <= p part, so
-        the complement of a block's output never reaches a velocity (measured: products
-        equal to 4e-16 at eps_gmres 1e-12, same GMRES iterations; ``tests/test_bim.py``).
-        It saves 44% of the block memory and multiply-adds at p = 8 (243 rows, not 432):
-        measured 0.51-0.58x the time of a 27-sphere product at p = 8 (docs/mobility.md)."""
+        the complement of a block's output never reaches a velocity (``tests/test_bim.py``
+        checks it; docs/mobility.md has what it saves).
+
+        This direct build (one exact-expansion response per pair) is where precomputed
+        rotation tables would enter: a table lookup of the pair's scaled distance and a
+        rotation of the coefficients into the pair's direction would replace it."""
         M, N, p = self.M, self.N, self.p
         b = self.basis
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)
         cfac = b.to_complex[flat, np.arange(nv)]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
-        # than p (a stored block is then much cheaper per product than the sum: measured at
-        # M = 64, p = 8, the 1454 pairs summed on grids 10 and 12 took 0.50 s of a 0.74 s
-        # forward product and most of a 1.25 s transposed one; a block costs about as much
-        # to build as two or three such sums, and a step makes hundreds of products)
+        # than p (a stored block is then much cheaper per product than the sum; measured in
+        # docs/mobility.md, "Blocks for fine-grid pairs")
         lv = self.level_of
         fine = [L for L, q in enumerate(self.levels) if q > p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))

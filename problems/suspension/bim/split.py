@@ -9,8 +9,8 @@ fidelity's own discretisation near contact and makes the rest cheap:
   (the full order-p density to the degree-p traction coefficients);
 * every other pair acts only through the source density's vector spherical harmonics of
   degree <= q, and its traction on the target is projected onto degree <= q: a
-  ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)`` (about 11 times fewer multiply-adds
-  at q = 4, p = 8), the stored block's rows and columns of degree <= q.  q is
+  ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)``, the stored block's rows and
+  columns of degree <= q.  q is
   ``far_degree`` for the closest of these pairs and falls gently with distance: a pair
   at centre distance R (in source radii) gets the least q with
   ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the distance of a pair at
@@ -24,9 +24,8 @@ fidelity's own discretisation near contact and makes the rest cheap:
   value, and applied as ``U (V' c)``: ``2 nv r`` multiply-adds instead of ``nv^2``.  The
   blocks between spheres are far from full rank at a low's accuracy: the field of a
   degree-l density reaches the target's degree-l' harmonics with weight falling like
-  ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is below 1e-3, and
-  even a near-contact block keeps about 77 of its 241 terms at 1e-3 (measured:
-  docs/mobility.md);
+  ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is small at a low's
+  accuracy, near-contact blocks included (the ranks kept: docs/mobility.md);
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
 It is built from a high :class:`.operator.BimMobility` and shares its set-up (the same
@@ -37,11 +36,11 @@ decompositions; their set-up cost is measured in docs/mobility.md).  Its
 transpose is exact (``M.T @ y``: the same pieces transposed, the truncated blocks by the
 compiled block-transpose kernel), but the contact operators of lcpbench use this low
 unsymmetrised, ``D' M D``, with one forward solve per product: the discrete mobility's own
-asymmetry at p = 8, about 4e-5, is far below what a low fidelity is accurate to, and
+asymmetry at p = 8 (docs/mobility.md) is far below what a low fidelity is accurate to, and
 symmetrising would double the low's cost.
 
 Pairs that the high evaluates by direct quadrature rather than a stored block (beyond the
-block budget, from about a hundred spheres at p = 8) stay as they are: the split then
+block budget) stay as they are: the split then
 saves less.  Named ``p<k>f<q>e<j>`` in scene specs and ``lcpbench generate --low``
 (``p8f4e3``: order 8 near contact, degree 4 far field, GMRES 1e-3), and
 ``p<k>f<q>r<i>e<j>`` with the blocks compressed at ``rank_tol = 1e-i`` (``p8f6r3e3``).
