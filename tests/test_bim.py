@@ -15,13 +15,13 @@ from lcpbench.problems.suspension.bim import (
 )
 from lcpbench.problems.suspension.bim.harmonics import unit_field
 from lcpbench.problems.suspension.bim.sphere_vsh import (
-    _sample_basis,
     expansion_coefficients,
     grid_levels,
     quadrature_errors,
     quadrature_radius,
     rigid_density,
     s_eigenvalue,
+    sampled_basis,
     self_operators,
     sphere_grid,
     traction_eigenvalue,
@@ -96,7 +96,7 @@ def test_exterior_expansion_matches_quadrature_and_jump():
     I = np.empty((p + 3, p + 3), dtype=complex)
     u, G, gP = np.empty(3), np.empty((3, 3)), np.empty(3)
     # fine quadrature of the interpolated density (order 30 grid)
-    Bq, _ = _sample_basis(p, 30)
+    Bq = sampled_basis(p, 30)
     gq = sphere_grid(30)
     f = gq.weights[:, None] * (Bq @ (b.A @ sig)).reshape(-1, 3)
     for x in (np.array([1.6, 0.3, -0.8]), np.array([3.0, 1.0, 2.0])):
