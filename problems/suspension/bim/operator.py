@@ -165,6 +165,11 @@ class BimMobility(LinearOperator):
         The same for every transposed product.
     """
 
+    setup: BimSetup
+    _recycler: RecycledGCR | None
+    _adj_recycler: RecycledGCR | None
+    _pieces: AdjointPieces | None
+
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
                  mu: float = 1.0, on_failure: str = "warn", recycle: int | None = None,
                  maxiter: int = 500, near_block_mb: float = 4096.0,
