@@ -170,6 +170,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     run = SimSettings(scene_spec=str(scene_spec).strip(), tol=tol, stop=stop,
                       warm_start=warm_start, qn_memory=qn_memory, max_emvps=max_emvps,
                       max_seconds=max_seconds, overlap_tol=float(overlap_tol))
+    run.budget()                                   # a bad budget is refused before any write
     probe = make_scene(run.scene_spec)             # validates the scene before any work
     infos = {s: _check_solver(s, [str(x) for x in probe.params.low], run.scene_spec)
              for s in specs}
