@@ -24,12 +24,10 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
 from common import packed_lattice
 from low_fidelity import build, dense_sym
 
-from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.bim import split_mobility
+from lcpbench.problems.suspension.bim import BimMobility, split_mobility
 
 
 def main() -> None:

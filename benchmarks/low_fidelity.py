@@ -23,10 +23,9 @@ import argparse
 import time
 
 import numpy as np
-
-import lcpbench
 from common import packed_lattice
 
+import lcpbench
 from lcpbench.core.operator import dense_uncounted
 from lcpbench.problems.suspension.problem import build_contact_problem
 

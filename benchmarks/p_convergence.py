@@ -20,7 +20,6 @@ import argparse
 import time
 
 import numpy as np
-
 from common import packed_lattice
 
 from lcpbench.problems.suspension.problem import build_contact_problem

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
 from common import packed_lattice
 from low_fidelity import build, dense_sym
 

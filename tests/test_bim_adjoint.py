@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from lcpbench.problems.suspension.bim import BimMobility
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
+
 from lcpbench.problems.suspension.bim import BimConvergenceWarning, BimMobility
 from lcpbench.problems.suspension.bim.gmres import relaxed_gmres
-from threadpoolctl import threadpool_info, threadpool_limits
 
 
 def _cluster() -> tuple[np.ndarray, np.ndarray]:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from lcpbench.problems.suspension import mobility, rpy_matrix
 from scipy.sparse.linalg import LinearOperator
 from scipy.special import spherical_jn
 from scipy.stats import special_ortho_group
+
+from lcpbench.problems.suspension import mobility, rpy_matrix
 
 PI = np.pi
 

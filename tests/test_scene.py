@@ -9,16 +9,15 @@ import pandas as pd
 import pytest
 import scipy.sparse as sp
 
-from lcpbench.core.api import run_solver
 from lcpbench.cli import main
+from lcpbench.core.api import run_solver
+from lcpbench.core.registry import make_scene
 from lcpbench.problems.suspension.contacts import Contacts, max_overlap
 from lcpbench.problems.suspension.fidelity import parse_fidelity
 from lcpbench.problems.suspension.problem import build_contact_problem, contact_lcp
-from lcpbench.problems.suspension.scene import (
-    LatticeParams, LatticeScene, bisect_scale)
-from lcpbench.core.registry import make_scene
-from lcpbench.workflows.simulate import simulate
+from lcpbench.problems.suspension.scene import LatticeParams, LatticeScene, bisect_scale
 from lcpbench.report.tables import online_table
+from lcpbench.workflows.simulate import simulate
 
 
 def _has_rpy() -> bool:
@@ -313,8 +312,8 @@ def test_scene_warm_start_carries_forces_by_pair_identity():
     prob = scene.build(warm_start=True)
     x0 = prob.lcp.x0
     assert x0 is not None
-    for l, pair in enumerate(prob.contacts.pairs.tolist()):
-        assert x0[l] == pytest.approx(prev.get(tuple(pair), 0.0))
+    for k, pair in enumerate(prob.contacts.pairs.tolist()):
+        assert x0[k] == pytest.approx(prev.get(tuple(pair), 0.0))
     assert scene.build(warm_start=False).lcp.x0 is None
 
 
@@ -421,9 +420,10 @@ def test_cli_simulate_errors_exit_2(tmp_path, capsys, argv, msg):
 
 
 def test_paper_lattice_keeps_the_authors_gaps():
+    from scipy.spatial.distance import pdist
+
     from lcpbench.core.registry import make_scene
     from lcpbench.problems.suspension.scene import LatticeParams, PaperLatticeParams
-    from scipy.spatial.distance import pdist
 
     scene = make_scene("paper-lattice:m=3,model=rpy")
     P = scene.params
@@ -443,9 +443,13 @@ def test_a_new_low_fidelity_is_one_registration():
     """The worked example of docs/architecture.md, "Adding a low fidelity": a new kind of
     fidelity name is one registered builder (here the one-sphere mobility halved, named
     ``half<k>`` for a factor 1/k); scenes and contact problems then find it by name."""
-    from lcpbench.problems.suspension.fidelity import (Fidelity, FidelityKind,
-                                                       register_fidelity, self_mobility,
-                                                       unregister_fidelity)
+    from lcpbench.problems.suspension.fidelity import (
+        Fidelity,
+        FidelityKind,
+        register_fidelity,
+        self_mobility,
+        unregister_fidelity,
+    )
 
     def describe(match, p, eps_gmres):
         return Fidelity(match.group(0), "scaled-self", "self", p, eps_gmres,

@@ -18,13 +18,14 @@ a list (``low=[p3,p4]``).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib.util
 import os
 import sys
-import difflib
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Callable, Optional
+from typing import Any, Optional
 
 from lcpbench.core.specs import make_params, parse_spec
 
@@ -96,8 +97,8 @@ class ProblemInfo:
 
 _SOLVERS: dict[str, SolverInfo] = {}
 _PROBLEMS: dict[str, ProblemInfo] = {}
-_SCENES: dict[str, "SceneInfo"] = {}
-_SETS: dict[str, "SetInfo"] = {}
+_SCENES: dict[str, SceneInfo] = {}
+_SETS: dict[str, SetInfo] = {}
 _LOADED = {"lcpbench.solvers": False, "lcpbench.problems": False, "lcpbench.scenes": False}
 
 
@@ -107,7 +108,8 @@ def _check_name(name: str) -> None:
 
 
 def _check_params(name: str, params: type) -> None:
-    if not (dataclasses.is_dataclass(params) and params.__dataclass_params__.frozen):
+    frozen = getattr(getattr(params, "__dataclass_params__", None), "frozen", False)
+    if not (dataclasses.is_dataclass(params) and frozen):
         raise TypeError(f"parameters of {name!r} must be a frozen dataclass")
     for f in dataclasses.fields(params):
         if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
@@ -238,13 +240,13 @@ def problems() -> dict[str, ProblemInfo]:
     return dict(sorted(_PROBLEMS.items()))
 
 
-def scenes() -> dict[str, "SceneInfo"]:
+def scenes() -> dict[str, SceneInfo]:
     """All registered scene families, loading entry points on first use."""
     _load("lcpbench.scenes")
     return dict(sorted(_SCENES.items()))
 
 
-def stored_sets() -> dict[str, "SetInfo"]:
+def stored_sets() -> dict[str, SetInfo]:
     """All stored sets announced by problem plugins (``{name: SetInfo}``), natural order."""
     _load("lcpbench.problems")
     return dict(_SETS)

@@ -12,8 +12,9 @@ generate`` use of it, :class:`SceneProblem` what they use of one step's problem,
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Optional, Protocol, Sequence, runtime_checkable
+from typing import TYPE_CHECKING, Any, Optional, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -52,7 +53,7 @@ class FidelityAxes:
 class SceneProblem(Protocol):
     """One time step's problem, as :meth:`Scene.build` returns it."""
 
-    lcp: "LCP"
+    lcp: LCP
     """The step's LCP (counted operator, ``b``, warm start, low fidelities)."""
     setup_solves: int
     """Operator solves spent building it outside the LCP's counters."""

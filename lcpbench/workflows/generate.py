@@ -56,16 +56,17 @@ import platform
 import re
 import shlex
 import sys
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 
 from lcpbench import __version__
 from lcpbench.core.context import Budget
+from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import Operator, dense_uncounted, measure_cost
-from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.ranges import parse_ranges
 from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
@@ -99,6 +100,8 @@ def parse_steps(spec: Union[str, int, Iterable[int]]) -> list[int]:
         if not spec.strip():
             raise ValueError("--steps is empty; give step indices like 31-50 or 0,3,5-7")
         items = parse_ranges(spec, "--steps", "31-50 or 0,3,5-7 (0-based steps)")
+    elif isinstance(spec, bool):
+        raise TypeError(f"--steps: expected step indices, got {spec!r}; give e.g. 31-50")
     else:
         items = [int(s) for s in spec]
     if any(s < 0 for s in items):
@@ -472,7 +475,8 @@ def _stored_steps(ids: Iterable[str]) -> set:
 
 def _steps_text(steps: Sequence[int]) -> str:
     """``[0, 1, 2, 5]`` -> ``"0-2,5"``."""
-    parts, run = [], []
+    parts: list[str] = []
+    run: list[int] = []
     for s in sorted(steps):
         if run and s == run[-1] + 1:
             run.append(s)

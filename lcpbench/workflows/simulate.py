@@ -39,23 +39,28 @@ import json
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 import pandas as pd
 
 from lcpbench.core.api import requested_lows
+from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
-from lcpbench.core.registry import get_solver
-from lcpbench.core.scene import StepRecord, step_scene
-from lcpbench.core.specs import make_params, parse_spec
+from lcpbench.core.registry import SolverInfo, get_solver
 from lcpbench.core.residuals import make_stop_rule
+from lcpbench.core.scene import Scene, StepRecord, step_scene
+from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.run.runner import result_fields
 from lcpbench.run.store import RunStore
-from lcpbench.core.clock import utc_now
-from lcpbench.workflows.checkpoint import (Checkpoint, checkpoint_path, load_checkpoint,
-                                           save_checkpoint)
+from lcpbench.workflows.checkpoint import (
+    Checkpoint,
+    checkpoint_path,
+    load_checkpoint,
+    save_checkpoint,
+)
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "DEFAULT_QN_MEMORY", "Interrupted"]
 
@@ -239,11 +244,11 @@ class SimulationJob:
     """One simulation: a scene stepped with one solver (:func:`_one_simulation`)."""
 
     store: RunStore
-    scene: object
+    scene: Scene
     run: SimSettings
     spec: str
     name: str
-    info: object
+    info: SolverInfo
     steps: int
     progress: bool
     ckpt_path: Path

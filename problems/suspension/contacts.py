@@ -71,7 +71,7 @@ class Contacts:
     delta: float
 
     @classmethod
-    def from_configuration(cls, centers, radii, delta: float) -> "Contacts":
+    def from_configuration(cls, centers, radii, delta: float) -> Contacts:
         """Candidate pairs with gap ``<= delta``, their normals, gaps and ``D``.
 
         Parameters
@@ -132,8 +132,8 @@ class Contacts:
         if not self.n or not len(old_pairs):
             return out
         lookup = {(int(i), int(j)): k for k, (i, j) in enumerate(old_pairs)}
-        for l, (i, j) in enumerate(self.pairs):
-            out[l] = lookup.get((int(i), int(j)), -1)
+        for row, (i, j) in enumerate(self.pairs):
+            out[row] = lookup.get((int(i), int(j)), -1)
         return out
 
     def carry(self, old_pairs: np.ndarray, old_x: np.ndarray) -> np.ndarray:

@@ -17,8 +17,9 @@ scenes, ``lcpbench generate --low`` and the contact problem find it by name
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp

@@ -57,10 +57,10 @@ def contact_product(M: LinearOperator, D: sp.csc_matrix, symmetrize: bool) -> Li
     fidelity, whose products never move the spheres."""
     Dt = D.T.tocsr()
     n = D.shape[1]
-    if symmetrize:
-        mv = (lambda v: _symmetrized(M, D, Dt, v))
-    else:
-        mv = (lambda v: Dt @ _apply(M, D @ v))
+
+    def mv(v: np.ndarray) -> np.ndarray:
+        return _symmetrized(M, D, Dt, v) if symmetrize else Dt @ _apply(M, D @ v)
+
     return LinearOperator((n, n), dtype=np.float64, matvec=mv)
 
 

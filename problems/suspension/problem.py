@@ -17,8 +17,9 @@ E-MVPs use this step's cost ratio.  All options are one :class:`ContactOptions`.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Optional, Sequence, Union
+from typing import Optional, Union
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator

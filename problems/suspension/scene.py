@@ -38,8 +38,9 @@ when verifying the solve, so the update needs no extra mobility solve.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, Literal, Optional, Sequence
+from typing import Annotated, Literal, Optional
 
 import numpy as np
 from scipy.spatial.distance import pdist

@@ -15,8 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .harmonics import (cross_gradient, derivatives, field_buffers, solid_harmonics,
-                        unit_field)
+from .harmonics import cross_gradient, derivatives, field_buffers, solid_harmonics, unit_field
 
 __all__ = ["PARALLEL_WORK", "point_force_weight", "traction_expansion", "center_readout",
            "traction_response", "direct_traction_ranges", "direct_traction_ranges_serial",

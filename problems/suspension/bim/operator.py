@@ -77,7 +77,7 @@ from __future__ import annotations
 import contextlib
 import warnings
 import weakref
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
@@ -310,7 +310,7 @@ class BimMobility(LinearOperator):
         self.adjoint_iterations: list[int] = []
         self.adjoint_residuals: list[float] = []
 
-    def at_tolerance(self, eps_gmres: float) -> "BimMobility":
+    def at_tolerance(self, eps_gmres: float) -> BimMobility:
         """The same discrete mobility solved to another GMRES tolerance, on this one's set-up.
 
         The twin shares everything that depends only on the configuration and the order

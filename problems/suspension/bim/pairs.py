@@ -260,7 +260,7 @@ class PairPlan:
         This direct build (one exact-expansion response per pair) is where precomputed
         rotation tables would enter: a table lookup of the pair's scaled distance and a
         rotation of the coefficients into the pair's direction would replace it."""
-        M, N, p = self.M, self.N, self.p
+        M, p = self.M, self.p
         b = self.basis
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)

@@ -28,7 +28,7 @@ when the bound allowed skipping the check, the recurrence within that bound.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -32,7 +32,7 @@ eigenvalues).  Eigenvalues on the unit sphere, mu = 1:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from math import factorial
 
 import numpy as np
@@ -110,7 +110,7 @@ class SphereGrid:
         return self.nodes.shape[0]
 
 
-@lru_cache(maxsize=None)
+@cache
 def sphere_grid(p: int) -> SphereGrid:
     """The (p+1) Gauss-Legendre x 2p uniform grid of order p (cached)."""
     p = _check_p(p)
@@ -206,7 +206,7 @@ def _sample_basis(p: int, q: int) -> tuple[np.ndarray, list]:
     return np.stack(cols, axis=1), meta
 
 
-@lru_cache(maxsize=None)
+@cache
 def vsh_basis(p: int) -> VSHBasis:
     """Sampled real orthonormal VSH basis and its analysis matrix (cached per p)."""
     p = _check_p(p)
@@ -301,7 +301,7 @@ def _rigid_matrices(p: int) -> tuple[np.ndarray, np.ndarray]:
     return C, Bp
 
 
-@lru_cache(maxsize=None)
+@cache
 def self_operators(p: int) -> SelfOperators:
     """Build (once per p) the dense self operators of the unit sphere."""
     p = _check_p(p)
@@ -324,7 +324,7 @@ def self_operators(p: int) -> SelfOperators:
     return SelfOperators(p, S, Kp, C, L, precond, R)
 
 
-@lru_cache(maxsize=None)
+@cache
 def expansion_factors(p: int) -> np.ndarray:
     """Factors (5, 3, p+1, p+1) folding (C_V, C_W, C_X) into (Phi, chi, P_alpha, P_beta, P)."""
     n = np.arange(p + 1, dtype=float)[:, None] * np.ones((1, p + 1))
@@ -341,7 +341,7 @@ def expansion_factors(p: int) -> np.ndarray:
     return f
 
 
-@lru_cache(maxsize=None)
+@cache
 def coefficient_matrix(p: int) -> np.ndarray:
     """Complex ``(5 (p+1)^2, 3N)`` matrix: grid density -> folded expansion coefficients."""
     b = vsh_basis(p)
@@ -396,7 +396,7 @@ def grid_levels(p: int) -> tuple[int, ...]:
     return tuple(sorted(coarse | set(range(p, 2 * p + 1, 2)) | {2 * p}))
 
 
-@lru_cache(maxsize=None)
+@cache
 def sampled_basis(p: int, q: int) -> np.ndarray:
     """``(3 N_q, nv)``: the real VSH basis of degree <= p (columns of ``vsh_basis(p).B``)
     sampled on the grid of order q.  For ``q < p`` the columns of degree > q are zero
@@ -410,7 +410,7 @@ def sampled_basis(p: int, q: int) -> np.ndarray:
     return Bq
 
 
-@lru_cache(maxsize=None)
+@cache
 def upsampling_matrix(p: int, q: int) -> np.ndarray:
     """``(3 N_q, 3 N_p)`` matrix sampling the band-limited (degree <= p) interpolant of an
     order-p grid density on the grid of order q (spherical-harmonic synthesis; for
@@ -420,7 +420,7 @@ def upsampling_matrix(p: int, q: int) -> np.ndarray:
     return U
 
 
-@lru_cache(maxsize=None)
+@cache
 def projection_matrix(p: int, q: int) -> np.ndarray:
     """``(3 N_p, 3 N_q)``: values on the order-q grid (q >= p) -> their L2 projection onto
     the VSH of degree <= p, sampled on the order-p grid.
@@ -495,7 +495,7 @@ def quadrature_errors(p: int, q: int, rho: np.ndarray, seed: int = 1) -> np.ndar
     return np.abs(dr - ex).reshape(rho.size, -1).max(axis=1)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _error_table(p: int, q: int) -> np.ndarray:
     return quadrature_errors(p, q, RHO_GRID, seed=0)
 

@@ -52,10 +52,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kernels import (PARALLEL_WORK, apply_blocks, apply_blocks_serial, apply_lowrank,
-                      apply_lowrank_serial, dense_rows)
-from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
 from ..geometry import check_tolerance
+from .kernels import (
+    PARALLEL_WORK,
+    apply_blocks,
+    apply_blocks_serial,
+    apply_lowrank,
+    apply_lowrank_serial,
+    dense_rows,
+)
+from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
 from .operator import BimMobility
 from .pairs import PairPlan
 
