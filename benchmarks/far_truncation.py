@@ -1,4 +1,4 @@
-"""The distance-split low fidelity (:mod:`bim_split`): error and block work per far-field degree.
+"""The distance-split low fidelity (:mod:`bim.split`): error and block work per far-field degree.
 
 Usage::
 
@@ -27,8 +27,7 @@ import numpy as np
 from common import packed_lattice
 from low_fidelity import build, dense_sym
 
-from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.bim_split import split_mobility
+from lcpbench.problems.suspension.bim import BimMobility, split_mobility
 
 
 def main() -> None:

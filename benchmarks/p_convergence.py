@@ -22,7 +22,7 @@ import time
 import numpy as np
 from common import packed_lattice
 
-from lcpbench.problems.suspension.contacts import build_contact_problem
+from lcpbench.problems.suspension.problem import build_contact_problem
 from lcpbench.problems.suspension.scene import LatticeScene
 
 

@@ -24,7 +24,7 @@ from common import packed_lattice
 from low_fidelity import build, dense_sym
 
 from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.contacts import parse_fidelity
+from lcpbench.problems.suspension.fidelity import parse_fidelity
 from lcpbench.problems.suspension.rpy import rpy_matrix
 
 
@@ -33,7 +33,7 @@ def mobility_matrix(centers, radii, name: str) -> np.ndarray:
     if name == "rpy":
         return rpy_matrix(centers, radii)
     f = parse_fidelity(name, 8, 1e-10)
-    op = BimMobility(centers, radii, p=f["p"], eps_gmres=f["eps_gmres"])
+    op = BimMobility(centers, radii, p=f.p, eps_gmres=f.eps_gmres)
     Mx = np.column_stack([op @ e for e in np.eye(6 * len(centers))])
     return 0.5 * (Mx + Mx.T)
 

@@ -14,15 +14,15 @@ from lcpbench.problems.suspension.bim import (
     BimMobility,
     bim_mobility,
 )
-from lcpbench.problems.suspension.harmonics import unit_field
-from lcpbench.problems.suspension.sphere_vsh import (
-    _sample_basis,
+from lcpbench.problems.suspension.bim.harmonics import unit_field
+from lcpbench.problems.suspension.bim.sphere_vsh import (
     expansion_coefficients,
     grid_levels,
     quadrature_errors,
     quadrature_radius,
     rigid_density,
     s_eigenvalue,
+    sampled_basis,
     self_operators,
     sphere_grid,
     traction_eigenvalue,
@@ -97,7 +97,7 @@ def test_exterior_expansion_matches_quadrature_and_jump():
     work = np.empty((p + 3, p + 3), dtype=complex)
     u, G, gP = np.empty(3), np.empty((3, 3)), np.empty(3)
     # fine quadrature of the interpolated density (order 30 grid)
-    Bq, _ = _sample_basis(p, 30)
+    Bq = sampled_basis(p, 30)
     gq = sphere_grid(30)
     f = gq.weights[:, None] * (Bq @ (b.A @ sig)).reshape(-1, 3)
     for x in (np.array([1.6, 0.3, -0.8]), np.array([3.0, 1.0, 2.0])):
@@ -201,9 +201,9 @@ def test_far_pairs_use_direct_quadrature_consistently():
     assert A.n_far_pairs > 0 and A.n_near_pairs > 0
     ft = np.random.default_rng(0).standard_normal(18)
     u = A @ ft
-    # same configuration with every pair treated by expansions
-    B = BimMobility(c, 1.0, p=8, eps_gmres=1e-12)
-    B._setup_interactions(all_expansion=True)
+    # same configuration with every pair treated by expansions: no source grid is
+    # accurate to a quadrature tolerance this tight at any distance
+    B = BimMobility(c, 1.0, p=8, eps_gmres=1e-12, quad_tol=1e-300)
     assert B.n_far_pairs == 0 and B.n_near_pairs == 6
     assert np.abs(B @ ft - u).max() < 1e-11 * np.abs(u).max()
 
@@ -287,14 +287,13 @@ def test_levels_and_blocks_agree_with_all_expansions():
     A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3, near_upsample=1)
     assert A.n_block_pairs > 0 and A.plan.fly_idx.size > 0 and A.n_far_pairs > 0
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= 2
-    s = np.random.default_rng(0).standard_normal(A.M * 3 * A._N)
+    s = np.random.default_rng(0).standard_normal(A.M * 3 * A.N)
     s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
-    B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_upsample=1)
-    B._setup_interactions(all_expansion=True)
+    B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_upsample=1, quad_tol=1e-300)
     # stored blocks act in coefficients (their output's nodal complement never reaches a
-    # velocity, bim_pairs), so compare the outputs' degree <= p parts
+    # velocity, bim/pairs.py), so compare the outputs' degree <= p parts
     Ap = vsh_basis(6).A
-    ya, yb = ((Ap @ y.reshape(A.M, -1).T).T for y in (A._apply_bie(s), B._apply_bie(s)))
+    ya, yb = ((Ap @ y.reshape(A.M, -1).T).T for y in (A.apply_bie(s), B.apply_bie(s)))
     assert np.abs(ya - yb).max() <= 20 * A.quad_tol * np.abs(s).max()
 
 
@@ -303,8 +302,8 @@ def test_fmm_far_field_matches_direct():
     ft = np.random.default_rng(2).standard_normal(60)
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-9)
     F = BimMobility(c, 1.0, p=4, eps_gmres=1e-9, far="fmm")
-    s = np.random.default_rng(1).standard_normal(A.M * 3 * A._N)
-    assert np.abs(F._apply_bie(s) - A._apply_bie(s)).max() <= 1e-9 * np.abs(s).max()
+    s = np.random.default_rng(1).standard_normal(A.M * 3 * A.N)
+    assert np.abs(F.apply_bie(s) - A.apply_bie(s)).max() <= 1e-9 * np.abs(s).max()
     ua, uf = A @ ft, F @ ft
     assert np.abs(uf - ua).max() <= 1e-8 * np.abs(ua).max()
     with pytest.raises(ValueError, match="far"):
@@ -325,8 +324,8 @@ def test_relaxed_gmres_reaches_true_residual():
 
 
 def _dense_bie(A: BimMobility) -> np.ndarray:
-    n = A.M * 3 * A._N
-    return np.column_stack([A._apply_bie(A._precondition(e)) for e in np.eye(n)])
+    n = A.M * 3 * A.N
+    return np.column_stack([A.apply_bie(A.precondition(e)) for e in np.eye(n)])
 
 
 @pytest.mark.parametrize("p", [4, 6])
@@ -366,7 +365,7 @@ def test_projected_blocks_equal_on_the_fly_projection():
 
 
 def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
-    """Stored blocks keep only their output's degree <= p part (bim_pairs); with node-sampled
+    """Stored blocks keep only their output's degree <= p part (bim/pairs.py); with node-sampled
     near fields the nodal output has more, and the mobility must not see it: the product
     equals the one with every pair evaluated on the fly at the nodes."""
     c = _random_cluster(5, 5, 6.0)
@@ -374,8 +373,8 @@ def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1)
     B = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, near_block_mb=0)
     assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
-    s = np.random.default_rng(6).standard_normal(A.M * 3 * A._N)
-    nodal = np.abs(A._apply_bie(s) - B._apply_bie(s)).max() / np.abs(s).max()
+    s = np.random.default_rng(6).standard_normal(A.M * 3 * A.N)
+    nodal = np.abs(A.apply_bie(s) - B.apply_bie(s)).max() / np.abs(s).max()
     assert nodal > 1e-8                        # the blocks' nodal outputs do differ ...
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-10 * np.abs(ua).max()    # ... the velocities do not
@@ -393,14 +392,14 @@ def test_preconditioned_operator_drops_only_the_identity_self_part():
         plan = A.plan
         assert (A.n_block_pairs == 20) == blocked
         assert bool(plan.fly_idx.size or plan.flyn_idx.size or plan.n_src) != blocked
-        ref = A._apply_bie(A._precondition(y))
-        got = A._apply_preconditioned(y)
+        ref = A.apply_bie(A.precondition(y))
+        got = A.apply_preconditioned(y)
         assert np.abs(got - ref).max() <= 1e-11 * np.abs(ref).max()
         # the interactions are really there: G is not the identity
         assert np.abs(got - y).max() > 1e-3 * np.abs(y).max()
     one = BimMobility(np.zeros((1, 3)), 1.0, p=4)
     y1 = y[:3 * sphere_grid(4).size]
-    assert np.allclose(one._apply_preconditioned(y1), one._apply_bie(one._precondition(y1)),
+    assert np.allclose(one.apply_preconditioned(y1), one.apply_bie(one.precondition(y1)),
                        rtol=1e-11, atol=1e-12)
 
 

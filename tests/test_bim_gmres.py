@@ -1,5 +1,5 @@
 """Tests of the relaxed GMRES driver of the boundary-integral mobility
-(:func:`bim_gmres.relaxed_gmres`) and of the solves that use it."""
+(:func:`bim.gmres.relaxed_gmres`) and of the solves that use it."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from lcpbench.problems.suspension.bim import BimConvergenceWarning, BimMobility
-from lcpbench.problems.suspension.bim_gmres import relaxed_gmres
+from lcpbench.problems.suspension.bim.gmres import relaxed_gmres
 
 
 def _cluster() -> tuple[np.ndarray, np.ndarray]:

@@ -1,12 +1,12 @@
-"""Krylov recycling of the boundary-integral solves (problems/suspension/bim_recycle.py)
+"""Krylov recycling of the boundary-integral solves (problems/suspension/bim/recycle.py)
 and the paired forward/transposed product of the mobility."""
 
 import numpy as np
 import pytest
 
 from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.bim_recycle import RecycledGCR, solve_together
-from lcpbench.problems.suspension.contacts import build_contact_problem
+from lcpbench.problems.suspension.bim.recycle import RecycledGCR, solve_together
+from lcpbench.problems.suspension.problem import build_contact_problem
 
 
 def _matrix(n=60, seed=0):
@@ -131,12 +131,12 @@ def test_cold_products_start_empty_and_keep_the_directions():
     first = A.gmres_iterations[-1]
     A @ x[::-1].copy()
     assert A.gmres_iterations[-1] < first                         # recycled: cheaper
-    kept = A._recycler.size
+    kept = A.recycled_directions
     with A.cold_products():
         u_cold = A @ x
         assert A.gmres_iterations[-1] == first                    # as the first product
-        assert A._recycler.size == first
-    assert A._recycler.size == kept                               # directions put back
+        assert A.recycled_directions == first
+    assert A.recycled_directions == kept                               # directions put back
     assert np.abs(u_cold - u).max() <= 1e-8 * np.abs(u).max()
     A @ x
     assert A.gmres_iterations[-1] <= 1                            # x's directions are kept

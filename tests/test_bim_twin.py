@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.contacts import build_contact_problem
+from lcpbench.problems.suspension.problem import build_contact_problem
 
 CENTERS = np.array([[0.0, 0.0, 0.0], [2.15, 0.0, 0.0], [1.0, 1.9, 0.3], [-0.4, -1.2, 1.8]])
 
@@ -23,7 +23,7 @@ def test_twin_is_the_same_map_to_its_own_tolerance():
     assert loose.gmres_iterations[0] < high.gmres_iterations[0]
     # each keeps its own records and kept directions
     assert len(high.gmres_iterations) == 1 and len(loose.gmres_iterations) == 1
-    assert loose._recycler is not high._recycler
+    assert 0 < loose.recycled_directions < high.recycled_directions
     # the transposed product of the twin agrees with the high's transposed product
     ut = high.T @ x
     assert np.linalg.norm(same.T @ x - ut) <= 1e-8 * np.linalg.norm(ut)
@@ -90,7 +90,7 @@ def test_operators_are_freed_without_the_cyclic_collector():
 
 
 def test_split_low_keeps_near_pairs_and_truncates_far_ones():
-    from lcpbench.problems.suspension.bim_split import split_mobility
+    from lcpbench.problems.suspension.bim import split_mobility
 
     centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
     high = BimMobility(centers, 1.0, p=6, eps_gmres=1e-10)
@@ -137,7 +137,7 @@ def test_split_low_keeps_near_pairs_and_truncates_far_ones():
 
 
 def test_compressed_split_low_cuts_block_singular_values():
-    from lcpbench.problems.suspension.bim_split import split_mobility
+    from lcpbench.problems.suspension.bim import split_mobility
 
     centers = np.vstack([CENTERS, [[4.6, 0.3, -0.2]]])
     high = BimMobility(centers, 1.0, p=6, eps_gmres=1e-10)
@@ -156,7 +156,7 @@ def test_compressed_split_low_cuts_block_singular_values():
     err = np.linalg.norm(cut @ x - u) / np.linalg.norm(u)
     assert 1e-8 < err < 1e-2
     # every block's cut really is at 1e-2 of its largest singular value: rebuild block 0
-    g = cut._groups[0]
+    g = cut.near.groups[0]
     first, second, off, rank, length = g.factors
     L, r, o = length[0], rank[0], off[0]
     E0 = second[o:o + r * L].reshape(r, L).T @ first[o:o + r * L].reshape(r, L)
@@ -175,14 +175,14 @@ def test_compressed_split_low_cuts_block_singular_values():
 
 
 def test_split_low_by_name_in_a_contact_problem():
-    from lcpbench.problems.suspension.contacts import parse_fidelity
+    from lcpbench.problems.suspension.fidelity import parse_fidelity
 
-    assert parse_fidelity("p8f4e3", 8, 1e-8) == {"model": "bim", "p": 8, "eps_gmres": 1e-3,
-                                                  "far_degree": 4}
+    assert parse_fidelity("p8f4e3", 8, 1e-8).knobs() == {"model": "bim", "p": 8,
+                                                          "eps_gmres": 1e-3, "far_degree": 4}
     with pytest.raises(ValueError, match="far-field degree"):
         parse_fidelity("p4f6e3", 8, 1e-8)
-    assert parse_fidelity("p8f6r3e3", 8, 1e-8) == {"model": "bim", "p": 8, "eps_gmres": 1e-3,
-                                                    "far_degree": 6, "rank_tol": 1e-3}
+    assert parse_fidelity("p8f6r3e3", 8, 1e-8).knobs() == {
+        "model": "bim", "p": 8, "eps_gmres": 1e-3, "far_degree": 6, "rank_tol": 1e-3}
     with pytest.raises(ValueError, match="far-field degree too"):
         parse_fidelity("p8r3e3", 8, 1e-8)
     with pytest.raises(ValueError, match="r0"):

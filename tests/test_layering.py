@@ -102,3 +102,37 @@ def test_an_unlisted_solver_runs_by_name_but_joins_no_default(capsys):
     assert not any(s.startswith("test-unlisted") for s in default_specs(["low"]))
     assert main(["list", "solvers", "--brief"]) == 0
     assert "test-unlisted" not in capsys.readouterr().out
+
+
+def test_every_shipped_scene_meets_the_scene_protocol():
+    """The scene contract is code (lcpbench.core.scene): every registered scene provides
+    the members of ``Scene`` with the documented signatures, declares its fidelity knobs,
+    and its ``build`` returns a ``SceneProblem``."""
+    import inspect
+
+    from lcpbench.core.registry import make_scene
+    from lcpbench.core.scene import FidelityAxes, Scene, SceneProblem
+
+    members = [n for n in dir(Scene) if not n.startswith("_")]
+    assert {"build", "advance", "get_state", "set_state", "fidelity_knobs", "carry_memory",
+            "keep_memory", "M", "radii", "step_index", "params",
+            "fidelity_axes"} <= set(members) | set(Scene.__annotations__)
+    for name in scenes():
+        scene = make_scene(f"{name}:m=2,model=rpy")
+        assert isinstance(scene, Scene), name
+        for member in members:
+            want = getattr(Scene, member)
+            if callable(want) and not isinstance(want, property):
+                got = inspect.signature(getattr(scene, member)).parameters
+                assert list(inspect.signature(want).parameters)[1:] == list(got)[:len(
+                    inspect.signature(want).parameters) - 1], (name, member)
+        assert isinstance(scene.fidelity_axes, FidelityAxes)
+        knobs = scene.fidelity_knobs("rpy")
+        assert {scene.fidelity_axes.rows, scene.fidelity_axes.columns,
+                scene.fidelity_axes.model_knob} <= set(knobs)
+        problem = scene.build()
+        assert isinstance(problem, SceneProblem), name
+        assert len(problem.pairs) == problem.lcp.n
+        # the framework reads the declared knobs from the registry, without a spec
+        from lcpbench.core.registry import get_scene
+        assert get_scene(name).fidelity_axes() == scene.fidelity_axes

@@ -62,7 +62,7 @@ def test_live_bim_contact_operator_is_symmetrised_with_the_adjoint():
     tolerance, two mobility solves per product, while the one-solve operator
     (symmetrize=False) keeps the discretisation's asymmetry."""
     from lcpbench.core.operator import dense_uncounted
-    from lcpbench.problems.suspension.contacts import build_contact_problem
+    from lcpbench.problems.suspension.problem import build_contact_problem
 
     c = np.array([[0.0, 0.0, 0.0], [2.05, 0.3, 0.0], [0.3, 2.2, 0.2], [0.2, 0.8, 2.1]])
     F = np.array([[1.0, 0.5, 0.0], [-1.0, 0.0, 0.2], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])

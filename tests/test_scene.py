@@ -12,13 +12,9 @@ import scipy.sparse as sp
 from lcpbench.cli import main
 from lcpbench.core.api import run_solver
 from lcpbench.core.registry import make_scene
-from lcpbench.problems.suspension.contacts import (
-    Contacts,
-    build_contact_problem,
-    contact_lcp,
-    max_overlap,
-    parse_fidelity,
-)
+from lcpbench.problems.suspension.contacts import Contacts, max_overlap
+from lcpbench.problems.suspension.fidelity import parse_fidelity
+from lcpbench.problems.suspension.problem import build_contact_problem, contact_lcp
 from lcpbench.problems.suspension.scene import LatticeParams, LatticeScene, bisect_scale
 from lcpbench.report.tables import online_table
 from lcpbench.workflows.simulate import simulate
@@ -163,7 +159,7 @@ def test_a_for_the_scene_model_is_symmetric_psd():
 
 
 def test_scene_step_uses_eq_defaandb_and_moves_with_u_nc_plus_mdx():
-    from lcpbench.problems.suspension.contacts import resolve_mobility
+    from lcpbench.problems.suspension.problem import resolve_mobility
 
     scene = LatticeScene(2, model=MODEL, seed=4)
     for _ in range(10):                         # until the cluster presses together
@@ -202,9 +198,15 @@ def test_low_fidelity_operators_carry_measured_costs():
 
 
 def test_parse_fidelity_names():
-    assert parse_fidelity("p4e6", 8, 1e-8) == {"model": "bim", "p": 4, "eps_gmres": 1e-6}
-    assert parse_fidelity("p3", 8, 1e-8) == {"model": "bim", "p": 3, "eps_gmres": 1e-8}
-    assert parse_fidelity("rpy", 8, 1e-8)["model"] == "rpy"
+    assert parse_fidelity("p4e6", 8, 1e-8).knobs() == {"model": "bim", "p": 4,
+                                                       "eps_gmres": 1e-6}
+    assert parse_fidelity("p3", 8, 1e-8).knobs() == {"model": "bim", "p": 3, "eps_gmres": 1e-8}
+    assert parse_fidelity("rpy", 8, 1e-8).model == "rpy"
+    # p and eps_gmres are checked where the name is parsed, naming the fidelity
+    with pytest.raises(ValueError, match="fidelity 'p0': p = 0 must be an integer"):
+        parse_fidelity("p0", 8, 1e-8)
+    with pytest.raises(ValueError, match=r"fidelity 'p4e0': eps_gmres = 1.0 must be"):
+        parse_fidelity("p4e0", 8, 1e-8)
     with pytest.raises(ValueError, match="unknown fidelity 'q4'"):
         parse_fidelity("q4", 8, 1e-8)
 
@@ -435,3 +437,54 @@ def test_paper_lattice_keeps_the_authors_gaps():
     assert gaps.min() < 0.35                            # with contacts sitting at it
     spec = make_scene("paper-lattice:m=2,separation=0.2,model=rpy")
     assert spec.params.separation == 0.2 and spec.params.spacing == 2.5
+
+
+def test_a_new_low_fidelity_is_one_registration():
+    """The worked example of docs/architecture.md, "Adding a low fidelity": a new kind of
+    fidelity name is one registered builder (here the one-sphere mobility halved, named
+    ``half<k>`` for a factor 1/k); scenes and contact problems then find it by name."""
+    from lcpbench.problems.suspension.fidelity import (
+        Fidelity,
+        FidelityKind,
+        register_fidelity,
+        self_mobility,
+        unregister_fidelity,
+    )
+
+    def describe(match, p, eps_gmres):
+        return Fidelity(match.group(0), "scaled-self", "self", p, eps_gmres,
+                        {"factor": 1.0 / int(match.group(1))})
+
+    def build(fid, config):
+        return fid.extra["factor"] * self_mobility(config.centers, config.radii, config.mu)
+
+    register_fidelity(FidelityKind("scaled-self", r"half(\d+)", describe, build, "half2"))
+    try:
+        scene = make_scene("lattice:m=2,model=rpy,low=[self,half2]")
+        assert scene.fidelity_knobs("half2") == {"model": "self", "p": 8, "eps_gmres": 1e-8,
+                                                 "factor": 0.5}
+        lcp = scene.build().lcp
+        assert lcp.n > 0 and set(lcp.low) == {"self", "half2"}
+        E = np.eye(lcp.n)
+        np.testing.assert_allclose(lcp.low["half2"] @ E, 0.5 * (lcp.low["self"] @ E),
+                                   rtol=1e-14)
+    finally:
+        unregister_fidelity("scaled-self")
+    with pytest.raises(ValueError, match="unknown fidelity 'half2'"):
+        make_scene("lattice:m=2,model=rpy,low=[half2]")
+
+
+def test_contact_options_are_one_parameter_object():
+    """build_contact_problem and contact_lcp share ContactOptions; keywords replace fields,
+    and an unknown keyword names the options."""
+    from lcpbench.problems.suspension.problem import ContactOptions
+
+    c = [[0, 0, 0], [2.1, 0, 0]]
+    opts = ContactOptions(dt=0.05, delta=0.3, model="self")
+    lcp = build_contact_problem(c, 1.0, options=opts).lcp
+    assert lcp.meta["dt"] == 0.05 and float(lcp.b[0]) == pytest.approx(0.1 / 0.05)
+    assert contact_lcp(c, 1.0, options=opts, dt=0.1).meta["dt"] == 0.1
+    with pytest.raises(TypeError, match="unknown contact option.*tdt.*the options are"):
+        contact_lcp(c, 1.0, tdt=0.1)
+    with pytest.raises(ValueError, match="separation = -1.0 must be"):
+        ContactOptions(separation=-1)

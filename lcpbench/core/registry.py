@@ -290,23 +290,23 @@ class SceneInfo:
     """A registered scene family: ``func(params) -> scene``.
 
     A scene is an online problem: each time step poses one LCP whose solution moves
-    the particles. The object returned by ``func`` must provide
-
-    * ``params``: the parameter dataclass it was made from;
-    * ``M``: the number of particles;
-    * ``low_names``: the low-fidelity operator names each step's LCP carries;
-    * ``fidelity_knobs(name) -> dict``: the knobs of a low-fidelity name (for example
-      ``{"model": "bim", "p": 4, "eps_gmres": 1e-6}``); raises ``ValueError`` naming
-      the accepted forms for an unknown name;
-    * ``problem(step, x0=None) -> problem`` and ``advance(problem, x)``: the step's
-      contact problem (with ``.lcp``) and the move that its solution ``x`` makes
-      (see ``lcpbench.workflows.simulate`` for the full loop).
+    the particles. The object returned by ``func`` meets the Protocol
+    :class:`lcpbench.core.scene.Scene` (``params``, ``M``, ``radii``, ``step_index``,
+    ``fidelity_axes``, ``build``, ``advance``, ``carry_memory``, ``keep_memory``,
+    ``fidelity_knobs``, ``get_state``, ``set_state``); ``tests/test_layering.py`` checks
+    every registered scene against it, and :func:`lcpbench.core.scene.step_scene` is the
+    step that ``simulate`` and ``generate`` make with it.
     """
 
     name: str
     func: Callable
     params: type
     summary: str = ""
+
+    def fidelity_axes(self):
+        """The fidelity knobs the scene declares (a :class:`lcpbench.core.scene.FidelityAxes`),
+        read from a scene made with the default parameters."""
+        return self.func(self.params()).fidelity_axes
 
 
 def register_scene(name: str, params: type):

@@ -49,6 +49,7 @@ set at a time.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import platform
@@ -62,7 +63,6 @@ from typing import Optional, Union
 import numpy as np
 
 from lcpbench import __version__
-from lcpbench.core.api import run_solver
 from lcpbench.core.context import Budget
 from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
@@ -70,6 +70,7 @@ from lcpbench.core.operator import Operator, dense_uncounted, measure_cost
 from lcpbench.core.ranges import parse_ranges
 from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
+from lcpbench.core.scene import step_scene
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.sets import SetWriter, instance_ids, read_instance
 from lcpbench.workflows.checkpoint import Checkpoint, load_checkpoint, save_checkpoint
@@ -416,17 +417,15 @@ def _simulate(w: SetWriter, scene, job: _Job, todo: list, *, desc: str,
             scene.params = job.with_lows if store else job.sim_params
             # forward operator only: the stored matrices are (A + A')/2 of n forward
             # products (the live symmetrised operator would cost 2n solves)
-            problem = scene.build(warm_start=True, symmetrize=False)
-            lcp = problem.lcp
-            if store:
-                _write_step(w, scene, problem, k, job)
-            res = run_solver(lcp, job.solver, stop=job.stop, tol=job.tol, budget=job.budget)
-            scene.advance(problem, res.x)
+            rec = step_scene(scene, job.solver, tol=job.tol, stop=job.stop, budget=job.budget,
+                             symmetrize=False, before_solve=(
+                                 functools.partial(_write_step, w, scene, k=k, job=job)
+                                 if store else None))
             save_checkpoint(job.ckpt_path, Checkpoint(step=k, config=job.ckpt_config,
                                                       scene_state=scene.get_state(),
                                                       row={"step": k}))
             simulated += 1
-            bar.set_postfix(step=k, n=lcp.n, stored=len(job.written) + len(job.kept))
+            bar.set_postfix(step=k, n=rec.n, stored=len(job.written) + len(job.kept))
             bar.update(1)
     finally:
         bar.close()

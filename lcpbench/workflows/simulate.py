@@ -49,8 +49,9 @@ import pandas as pd
 from lcpbench.core.api import requested_lows
 from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
-from lcpbench.core.registry import get_solver
+from lcpbench.core.registry import SolverInfo, get_solver
 from lcpbench.core.residuals import make_stop_rule
+from lcpbench.core.scene import Scene, StepRecord, step_scene
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.run.runner import result_fields
 from lcpbench.run.store import RunStore
@@ -122,7 +123,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     ----------
     scene_spec : str
         Scene, e.g. ``lattice:m=3,model=rpy,low=[self]`` (see
-        :class:`lcpbench.problems.suspension.scene.LatticeParams`).
+        the scene's parameters, ``lcpbench list scenes``).
     solver_spec : str or list of str
         One or more solver specs (``bi-pqn:low=self``, ``bb-pgd``); each runs
         its own simulation. The simulations take their steps in turn (one step
@@ -139,9 +140,9 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     qn_memory : bool
         Start each PQN solve's quasi-Newton model from the previous step's
         secant pairs, mapped onto the new contacts by pair identity (the
-        scene's ``carry_memory``); other solvers ignore it. On by default: it
-        cut Mono-PQN's mean E-MVPs per step by a third to a half on the
-        lattice runs of docs/benchmarks.md. Part of the simulation's settings:
+        scene's ``carry_memory``); other solvers ignore it. On by default (what
+        it saves: docs/benchmarks.md, "Quasi-Newton memory across time steps").
+        Part of the simulation's settings:
         a resume with the other choice is refused (simulations stored before
         the switch existed ran without the memory).
     progress : bool
@@ -167,88 +168,34 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     Interrupted
         SIGTERM arrived; the finished steps are stored, the same call resumes.
     """
-    from tqdm.auto import tqdm
-
     from lcpbench.core.registry import make_scene
-    from lcpbench.run.runner import git_commit, machine_info
 
-    if isinstance(solver_spec, str):
-        solver_spec = [solver_spec]
-    specs = [str(s).strip() for s in solver_spec]
-    if not specs:
-        raise ValueError("no solver given; pass at least one --solver NAME[:k=v,...]")
-    if len(set(specs)) != len(specs):
-        raise ValueError(f"solver list {specs} repeats a spec; each solver runs one simulation")
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps = {steps!r} must be an integer >= 1")
-    overlap_tol = float(overlap_tol)
-    if not (np.isfinite(overlap_tol) and overlap_tol >= 0):
-        raise ValueError(f"overlap_tol = {overlap_tol} must be a finite non-negative fraction "
-                         "of the radius")
+    specs = _check_inputs(solver_spec, steps, overlap_tol)
     make_stop_rule(stop, tol)
-    budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds)
-    scene_spec = str(scene_spec).strip()
-    probe = make_scene(scene_spec)                 # validates the scene before any work
-    scene_name = parse_spec(scene_spec)[0]
-    infos = {s: _check_solver(s, [str(x) for x in probe.params.low], scene_spec) for s in specs}
-
+    run = SimSettings(scene_spec=str(scene_spec).strip(), tol=tol, stop=stop,
+                      warm_start=warm_start, qn_memory=qn_memory, max_emvps=max_emvps,
+                      max_seconds=max_seconds, overlap_tol=float(overlap_tol))
+    run.budget()                                   # a bad budget is refused before any write
+    probe = make_scene(run.scene_spec)             # validates the scene before any work
+    infos = {s: _check_solver(s, [str(x) for x in probe.params.low], run.scene_spec)
+             for s in specs}
     store = RunStore(out_dir)
     with store.lock():
-        done = store.done_ids()
-        resumed: dict[str, tuple[Path, Optional[Checkpoint]]] = {}
-        for s in specs:
-            settings = _settings(scene_spec, s, tol, stop, warm_start, qn_memory, max_emvps,
-                                 max_seconds, overlap_tol)
-            path = checkpoint_path(store.path, _sim_key(scene_spec, s, warm_start))
-            if path.exists():
-                ckpt = load_checkpoint(path)
-                # checkpoints from before the switch existed ran without the memory
-                ckpt.config = {"qn_memory": False, **ckpt.config}
-                if ckpt.config != settings:
-                    changed = sorted(k for k in settings if settings[k] != ckpt.config.get(k))
-                    raise ValueError(f"{store.path} holds the simulation of {scene_spec!r} with "
-                                     f"{s!r} under other settings ({', '.join(changed)}); rerun "
-                                     "with the same settings to resume, or choose another --out")
-                resumed[s] = (path, ckpt)
-            elif _run_id(scene_spec, s, warm_start, 0) in done:
-                raise ValueError(f"{store.path} holds rows of the simulation of {scene_spec!r} "
-                                 f"with {s!r} but no checkpoint to resume from; choose another "
-                                 "--out")
-            else:
-                resumed[s] = (path, None)
-        old = store.read_meta() or {}
-        config = {"scene": scene_spec, "solvers": specs, "steps": int(steps), "tol": tol,
-                  "stop": stop, "warm_start": bool(warm_start), "qn_memory": bool(qn_memory),
-                  "max_emvps": max_emvps,
-                  "max_seconds": max_seconds, "overlap_tol": overlap_tol,
-                  "scene_params": dataclasses.asdict(probe.params)}
-        meta = dict(old)
-        meta.update({"argv": list(argv) if argv is not None else meta.get("argv", []),
-                     "command": "simulate", "started": utc_now(), "finished": None,
-                     "machine": machine_info(), "git_commit": git_commit()})
-        meta.setdefault("config", config)
-        sims = list(meta.get("simulations", []))
-        if json.dumps(config, sort_keys=True, default=str) not in \
-                {json.dumps(c, sort_keys=True, default=str) for c in sims}:
-            sims.append(config)
-        meta["simulations"] = sims
-        store.write_meta(meta)
-        frames = []
+        resumed = {s: _resume_point(store, run, s) for s in specs}
+        meta = _start_meta(store, run, specs, int(steps), probe, argv)
         in_main = threading.current_thread() is threading.main_thread()
         _TERM.clear()
         previous = signal.signal(signal.SIGTERM, _request_stop) if in_main else None
         try:
             sims = []
             for k, spec in enumerate(specs):
-                scene = probe if spec == specs[0] else make_scene(scene_spec)
+                scene = probe if spec == specs[0] else make_scene(run.scene_spec)
                 name, info = infos[spec]
-                path, start = resumed[spec]
-                settings = _settings(scene_spec, spec, tol, stop, warm_start, qn_memory,
-                                     max_emvps, max_seconds, overlap_tol)
-                sims.append(_one_simulation(
-                    store, scene, scene_spec, scene_name, spec, name, info, steps, warm_start,
-                    qn_memory, tol, stop, budget, overlap_tol, progress, tqdm, path, start,
-                    settings, _lows_for(spec, info, scene.params.low), k))
+                path, ckpt = resumed[spec]
+                sims.append(_one_simulation(SimulationJob(
+                    store=store, scene=scene, run=run, spec=spec, name=name, info=info,
+                    steps=int(steps), progress=progress, ckpt_path=path, ckpt=ckpt,
+                    lows=_lows_for(spec, info, scene.params.low), position=k)))
             frames = _round_robin(sims)
         except Interrupted:
             raise Interrupted(f"stopped by SIGTERM; every finished step is in {store.path}, "
@@ -259,6 +206,122 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         meta["finished"] = utc_now()
         store.write_meta(meta)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+@dataclasses.dataclass(frozen=True)
+class SimSettings:
+    """The settings every simulation of one :func:`simulate` call shares."""
+
+    scene_spec: str
+    tol: float
+    stop: str
+    warm_start: bool
+    qn_memory: bool
+    max_emvps: float
+    max_seconds: Optional[float]
+    overlap_tol: float
+
+    @property
+    def scene_name(self) -> str:
+        """The registered scene name of ``scene_spec``."""
+        return parse_spec(self.scene_spec)[0]
+
+    def budget(self) -> Budget:
+        """The budget of every solve."""
+        return Budget(max_emvps=self.max_emvps, max_seconds=self.max_seconds)
+
+    def for_solver(self, spec: str) -> dict:
+        """What a resumed simulation must share with the one it continues (not the step
+        count)."""
+        return {"scene": self.scene_spec, "solver": spec, "tol": float(self.tol),
+                "stop": self.stop, "warm_start": bool(self.warm_start),
+                "qn_memory": bool(self.qn_memory), "max_emvps": self.max_emvps,
+                "max_seconds": self.max_seconds, "overlap_tol": float(self.overlap_tol)}
+
+
+@dataclasses.dataclass
+class SimulationJob:
+    """One simulation: a scene stepped with one solver (:func:`_one_simulation`)."""
+
+    store: RunStore
+    scene: Scene
+    run: SimSettings
+    spec: str
+    name: str
+    info: SolverInfo
+    steps: int
+    progress: bool
+    ckpt_path: Path
+    ckpt: Optional[Checkpoint]
+    lows: tuple
+    position: int
+
+
+def _check_inputs(solver_spec, steps, overlap_tol) -> list:
+    """The solver specs, after the checks of the solver list, ``steps`` and ``overlap_tol``."""
+    if isinstance(solver_spec, str):
+        solver_spec = [solver_spec]
+    specs = [str(s).strip() for s in solver_spec]
+    if not specs:
+        raise ValueError("no solver given; pass at least one --solver NAME[:k=v,...]")
+    if len(set(specs)) != len(specs):
+        raise ValueError(f"solver list {specs} repeats a spec; each solver runs one simulation")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps = {steps!r} must be an integer >= 1")
+    tol = float(overlap_tol)
+    if not (np.isfinite(tol) and tol >= 0):
+        raise ValueError(f"overlap_tol = {tol} must be a finite non-negative fraction "
+                         "of the radius")
+    return specs
+
+
+def _resume_point(store: RunStore, run: SimSettings, spec: str
+                  ) -> tuple[Path, Optional[Checkpoint]]:
+    """The checkpoint path of one simulation and its checkpoint when it resumes (refused
+    when it was stored with other settings, or has rows but no checkpoint)."""
+    settings = run.for_solver(spec)
+    path = checkpoint_path(store.path, _sim_key(run.scene_spec, spec, run.warm_start))
+    if path.exists():
+        ckpt = load_checkpoint(path)
+        # checkpoints from before the switch existed ran without the memory
+        ckpt.config = {"qn_memory": False, **ckpt.config}
+        if ckpt.config != settings:
+            changed = sorted(k for k in settings if settings[k] != ckpt.config.get(k))
+            raise ValueError(f"{store.path} holds the simulation of {run.scene_spec!r} with "
+                             f"{spec!r} under other settings ({', '.join(changed)}); rerun "
+                             "with the same settings to resume, or choose another --out")
+        return path, ckpt
+    if _run_id(run.scene_spec, spec, run.warm_start, 0) in store.done_ids():
+        raise ValueError(f"{store.path} holds rows of the simulation of {run.scene_spec!r} "
+                         f"with {spec!r} but no checkpoint to resume from; choose another "
+                         "--out")
+    return path, None
+
+
+def _start_meta(store: RunStore, run: SimSettings, specs: list, steps: int, probe,
+                argv: Optional[Sequence[str]]) -> dict:
+    """Writes ``meta.json`` at the start of the run (this simulation's configuration added
+    to those already stored) and returns it."""
+    from lcpbench.run.runner import git_commit, machine_info
+
+    old = store.read_meta() or {}
+    config = {"scene": run.scene_spec, "solvers": specs, "steps": steps, "tol": run.tol,
+              "stop": run.stop, "warm_start": bool(run.warm_start),
+              "qn_memory": bool(run.qn_memory), "max_emvps": run.max_emvps,
+              "max_seconds": run.max_seconds, "overlap_tol": run.overlap_tol,
+              "scene_params": dataclasses.asdict(probe.params)}
+    meta = dict(old)
+    meta.update({"argv": list(argv) if argv is not None else meta.get("argv", []),
+                 "command": "simulate", "started": utc_now(), "finished": None,
+                 "machine": machine_info(), "git_commit": git_commit()})
+    meta.setdefault("config", config)
+    sims = list(meta.get("simulations", []))
+    if json.dumps(config, sort_keys=True, default=str) not in \
+            {json.dumps(c, sort_keys=True, default=str) for c in sims}:
+        sims.append(config)
+    meta["simulations"] = sims
+    store.write_meta(meta)
+    return meta
 
 
 def _lows_for(spec: str, info, scene_lows: Sequence[str]) -> tuple:
@@ -288,27 +351,19 @@ def _round_robin(sims: list) -> list:
     return frames
 
 
-def _settings(scene_spec: str, spec: str, tol: float, stop: str, warm: bool, qn_memory: bool,
-              max_emvps, max_seconds, overlap_tol: float) -> dict:
-    """What a resumed simulation must share with the one it continues (not the step count)."""
-    return {"scene": scene_spec, "solver": spec, "tol": float(tol), "stop": stop,
-            "warm_start": bool(warm), "qn_memory": bool(qn_memory), "max_emvps": max_emvps,
-            "max_seconds": max_seconds, "overlap_tol": float(overlap_tol)}
-
-
-def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, spec: str,
-                    name: str, info, steps: int, warm_start: bool, qn_memory: bool,
-                    tol: float, stop: str,
-                    budget: Budget, overlap_tol: float, progress: bool, tqdm, ckpt_path: Path,
-                    ckpt: Optional[Checkpoint], settings: dict, lows: tuple, position: int):
+def _one_simulation(job: SimulationJob):
     """One simulation as a generator: it yields after every stored step and returns its
     rows (:func:`_round_robin` interleaves several)."""
-    rule = make_stop_rule(stop, tol)
-    limit = overlap_tol * float(np.min(scene.radii))
-    solver_params = json.dumps(parse_spec(spec)[1], sort_keys=True)
-    problem_params = json.dumps(dataclasses.asdict(scene.params), sort_keys=True, default=str)
-    prefix = _sim_key(scene_spec, spec, warm_start) + "|"
-    if ckpt is not None:
+    from tqdm.auto import tqdm
+
+    store, scene, run, spec = job.store, job.scene, job.run, job.spec
+    rule = make_stop_rule(run.stop, run.tol)
+    limit = run.overlap_tol * float(np.min(scene.radii))
+    base = _RowBase(job, rule.kind)
+    budget = run.budget()
+    prefix = _sim_key(run.scene_spec, spec, run.warm_start) + "|"
+    if job.ckpt is not None:
+        ckpt = job.ckpt
         if ckpt.row["run_id"] not in store.done_ids():   # killed between checkpoint and row
             store.append(ckpt.row, ckpt.history)
         scene.set_state(ckpt.scene_state)
@@ -318,58 +373,65 @@ def _one_simulation(store: RunStore, scene, scene_spec: str, scene_name: str, sp
             return _stored_rows(store, prefix)
 
     def commit(row: dict, history, finished: bool) -> None:
-        save_checkpoint(ckpt_path, Checkpoint(step=int(row["step"]), config=settings,
-                                              scene_state=scene.get_state(), row=row,
-                                              history=history, finished=finished))
+        save_checkpoint(job.ckpt_path, Checkpoint(step=int(row["step"]),
+                                                  config=run.for_solver(spec),
+                                                  scene_state=scene.get_state(), row=row,
+                                                  history=history, finished=finished))
         store.append(row, history)
 
-    bar = tqdm(total=steps, initial=min(scene.step_index, steps),
-               desc=f"{scene_spec} | {spec}", disable=not progress, file=sys.stderr,
-               leave=False, position=position)
+    bar = tqdm(total=job.steps, initial=min(scene.step_index, job.steps),
+               desc=f"{run.scene_spec} | {spec}", disable=not job.progress, file=sys.stderr,
+               leave=False, position=job.position)
     try:
-        while scene.step_index < steps:
+        while scene.step_index < job.steps:
             if _TERM.is_set():
                 raise Interrupted("stopped by SIGTERM")
             started = utc_now()
             k = scene.step_index
             try:
-                rec = scene.step(spec, tol=tol, stop=stop, budget=budget,
-                                 warm_start=warm_start, qn_memory=qn_memory, lows=lows)
+                rec = step_scene(scene, spec, tol=run.tol, stop=run.stop, budget=budget,
+                                 warm_start=run.warm_start, qn_memory=run.qn_memory,
+                                 lows=job.lows)
             except ValueError as exc:  # diverged forces or a configuration the model rejects
-                row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, k, tol,
-                                rule.kind, solver_params, problem_params)
+                row = base.row(k)
                 row.update({"status": "failed", "message": f"simulation stopped: {exc}",
                             "solved": False, "started": started, "finished": utc_now()})
                 commit(row, None, finished=True)
                 print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
                 break
-            res = rec.result
-            over = rec.max_overlap > limit
-            message = res.message or ""
-            if over:
-                message = (f"{message}; " if message else "") + (
-                    f"overlap {rec.max_overlap:.3g} after the step exceeds the tolerance "
-                    f"{limit:.3g}: reduce dt or raise delta")
-            extra = {"setup_s": rec.setup_s, "update_s": rec.update_s,
-                     "setup_solves": rec.setup_solves, "update_solves": rec.update_solves,
-                     "warm_entries": rec.warm_entries,
-                     "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
-                     **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs}
-            row = _row_base(scene_spec, scene_name, spec, name, info, warm_start, rec.step, tol,
-                            rule.kind, solver_params, problem_params)
-            row.update({
-                "n": rec.n, "status": res.status.value, "message": message,
-                **result_fields(res), "sim_total_s": rec.total_s,
-                "max_overlap": rec.max_overlap,
-                "info": json.dumps(extra, sort_keys=True, default=str),
-                "started": started, "finished": utc_now()})
-            commit(row, res.history, finished=False)
-            bar.set_postfix(n=rec.n, emvps=f"{res.emvps:.1f}", status=res.status.value)
+            row = _step_row(base.row(rec.step), rec, limit)
+            row.update({"started": started, "finished": utc_now()})
+            commit(row, rec.result.history, finished=False)
+            bar.set_postfix(n=rec.n, emvps=f"{rec.result.emvps:.1f}",
+                            status=rec.result.status.value)
             bar.update(1)
             yield
     finally:
         bar.close()
     return _stored_rows(store, prefix)
+
+
+def _step_row(row: dict, rec: StepRecord, limit: float) -> dict:
+    """The result row of a finished step (``row`` holds the simulation's columns): status,
+    counts, times, and the overlap check against ``limit``."""
+    res = rec.result
+    over = rec.max_overlap > limit
+    message = res.message or ""
+    if over:
+        message = (f"{message}; " if message else "") + (
+            f"overlap {rec.max_overlap:.3g} after the step exceeds the tolerance "
+            f"{limit:.3g}: reduce dt or raise delta")
+    extra = {"setup_s": rec.setup_s, "update_s": rec.update_s,
+             "setup_solves": rec.setup_solves, "update_solves": rec.update_solves,
+             "warm_entries": rec.warm_entries,
+             "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
+             **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs}
+    row.update({
+        "n": rec.n, "status": res.status.value, "message": message,
+        **result_fields(res), "sim_total_s": rec.total_s,
+        "max_overlap": rec.max_overlap,
+        "info": json.dumps(extra, sort_keys=True, default=str)})
+    return row
 
 
 def _stored_rows(store: RunStore, prefix: str) -> pd.DataFrame:
@@ -381,12 +443,25 @@ def _stored_rows(store: RunStore, prefix: str) -> pd.DataFrame:
     return mine.sort_values("step").reset_index(drop=True)
 
 
-def _row_base(scene_spec: str, scene_name: str, spec: str, name: str, info, warm: bool,
-              step: int, tol: float, stop: str, solver_params: str, problem_params: str) -> dict:
-    return {"run_id": _run_id(scene_spec, spec, warm, step), "kind": "online",
-            "problem": scene_spec, "problem_params": problem_params, "family": scene_name,
-            "instance": f"step{step}", "instance_index": step, "n": 0,
-            "solver": spec if warm else f"{spec} (cold)",
-            "solver_name": name, "solver_params": solver_params, "mvp_only": info.mvp_only,
-            "multifidelity": info.multifidelity, "reference_solver": info.reference,
-            "tol": tol, "stop": stop, "repeat": 0, "step": step}
+class _RowBase:
+    """The columns every row of one simulation shares."""
+
+    def __init__(self, job: SimulationJob, stop_kind: str) -> None:
+        self.job, self.stop_kind = job, stop_kind
+        self.solver_params = json.dumps(parse_spec(job.spec)[1], sort_keys=True)
+        self.problem_params = json.dumps(dataclasses.asdict(job.scene.params),
+                                         sort_keys=True, default=str)
+
+    def row(self, step: int) -> dict:
+        """The shared columns of step ``step``'s row (``n`` 0 until the step is done)."""
+        job, run = self.job, self.job.run
+        info = job.info
+        return {"run_id": _run_id(run.scene_spec, job.spec, run.warm_start, step),
+                "kind": "online", "problem": run.scene_spec,
+                "problem_params": self.problem_params, "family": run.scene_name,
+                "instance": f"step{step}", "instance_index": step, "n": 0,
+                "solver": job.spec if run.warm_start else f"{job.spec} (cold)",
+                "solver_name": job.name, "solver_params": self.solver_params,
+                "mvp_only": info.mvp_only, "multifidelity": info.multifidelity,
+                "reference_solver": info.reference, "tol": run.tol, "stop": self.stop_kind,
+                "repeat": 0, "step": step}

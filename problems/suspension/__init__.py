@@ -20,39 +20,15 @@ Two models are available through :func:`mobility`:
 
 from __future__ import annotations
 
-import numbers
-
-import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-from .geometry import check_configuration, check_viscosity
+from .geometry import check_configuration, check_order, check_tolerance, check_viscosity
 from .rpy import rpy_matrix
 
 __all__ = ["MODELS", "mobility", "rpy_matrix"]
 
 #: Names accepted by :func:`mobility`.
 MODELS = ("rpy", "bim")
-
-
-# Wrong types raise ValueError too (not TypeError): callers of mobility() get one
-# exception type for every bad parameter, whichever model they ask for.
-def _check_order(p) -> int:
-    if isinstance(p, (bool, np.bool_)) or not isinstance(p, numbers.Integral):
-        raise ValueError(f"p = {p!r} must be an integer spherical-harmonic order >= 1, "  # noqa: TRY004
-                         "e.g. p=8")
-    if p < 1:
-        raise ValueError(f"p = {p} must be >= 1 (spherical-harmonic order); e.g. p=8")
-    return int(p)
-
-
-def _check_tolerance(eps_gmres) -> float:
-    if isinstance(eps_gmres, (bool, np.bool_)) or not isinstance(eps_gmres, numbers.Real):
-        raise ValueError(  # noqa: TRY004
-            f"eps_gmres = {eps_gmres!r} must be a real number > 0, e.g. 1e-8")
-    eps = float(eps_gmres)
-    if not (np.isfinite(eps) and eps > 0):
-        raise ValueError(f"eps_gmres = {eps} must be a finite GMRES tolerance > 0, e.g. 1e-8")
-    return eps
 
 
 def mobility(centers, radii, model: str = "bim", p: int = 8, eps_gmres: float = 1e-8,
@@ -86,8 +62,7 @@ def mobility(centers, radii, model: str = "bim", p: int = 8, eps_gmres: float = 
     Raises
     ------
     ValueError
-        Unknown model, ``p`` not an integer >= 1, ``eps_gmres`` not finite
-        and positive, non-positive ``mu``, or an invalid configuration
+        Unknown model, ``p`` not an integer >= 1, ``eps_gmres`` not in (0, 1), non-positive ``mu``, or an invalid configuration
         (bad shapes, non-finite positions, non-positive radii, coincident
         centres; overlapping spheres for ``"bim"``).  The same inputs give the
         same errors whichever model is asked for.
@@ -95,8 +70,8 @@ def mobility(centers, radii, model: str = "bim", p: int = 8, eps_gmres: float = 
     if not isinstance(model, str) or model not in MODELS:
         raise ValueError(f"unknown mobility model {model!r}; choose one of "
                          + ", ".join(repr(m) for m in MODELS))
-    p = _check_order(p)
-    eps_gmres = _check_tolerance(eps_gmres)
+    p = check_order(p)
+    eps_gmres = check_tolerance(eps_gmres)
     mu = check_viscosity(mu)
     centers, radii = check_configuration(centers, radii)
     if model == "rpy":

@@ -6,10 +6,13 @@ the errors are the same whichever model is asked for.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["check_configuration", "check_viscosity", "pair_gaps", "check_no_overlap"]
+__all__ = ["check_configuration", "check_viscosity", "check_order", "check_tolerance",
+           "pair_gaps", "check_no_overlap"]
 
 
 def check_configuration(centers, radii) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +73,26 @@ def check_viscosity(mu) -> float:
     if not (np.isfinite(mu) and mu > 0):
         raise ValueError(f"mu = {mu} must be a finite positive viscosity")
     return mu
+
+
+# Wrong types raise ValueError too (not TypeError): callers get one exception type for
+# every bad parameter, whichever model or fidelity they ask for.
+def check_order(p) -> int:
+    """Validate a spherical-harmonic order: an integer >= 1 (bool refused)."""
+    if isinstance(p, (bool, np.bool_)) or not isinstance(p, (int, np.integer)) or p < 1:
+        raise ValueError(f"p = {p!r} must be an integer spherical-harmonic order >= 1 (8 is "
+                         "high fidelity away from contact, 3-6 are typical low fidelities)")
+    return int(p)
+
+
+def check_tolerance(eps_gmres) -> float:
+    """Validate a relative GMRES tolerance: a finite number in (0, 1) (bool refused)."""
+    real = isinstance(eps_gmres, numbers.Real) and not isinstance(eps_gmres, (bool, np.bool_))
+    e = float(eps_gmres) if real else float("nan")
+    if not (np.isfinite(e) and 0 < e < 1):
+        raise ValueError(f"eps_gmres = {eps_gmres!r} must be a finite number in (0, 1), "
+                         "e.g. 1e-8 (relative GMRES residual)")
+    return e
 
 
 def pair_gaps(centers: np.ndarray, radii: np.ndarray, delta: float

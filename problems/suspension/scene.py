@@ -31,30 +31,37 @@ Orientations follow the rotational velocity, ``o <- o + dt Omega x o``
 LCPs have more contacts than spheres, as in the paper's time steps 201-250.
 
 Time stepping is forward Euler: each step builds the contact LCP of
-:mod:`.contacts`, solves it with the given solver, and moves the spheres with
+:mod:`.problem`, solves it with the given solver, and moves the spheres with
 ``U = U_nc + M D x``; the product ``M D x`` is the one the framework made
 when verifying the solve, so the update needs no extra mobility solve.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Literal, Optional
 
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from lcpbench.core.registry import make_scene, register_scene
+from lcpbench.core.registry import register_scene
+from lcpbench.core.scene import FidelityAxes, StepRecord, step_scene
 from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.quasinewton import SecantMemory
 
-from .contacts import ContactProblem, build_contact_problem, max_overlap, parse_fidelity
+from .contacts import max_overlap
+from .fidelity import parse_fidelity
 from .geometry import pair_gaps
+from .problem import ContactOptions, ContactProblem, build_contact_problem
 
-__all__ = ["LatticeParams", "LatticeScene", "StepRecord", "lattice_configuration",
-           "bisect_scale", "lattice", "PaperLatticeParams", "paper_lattice"]
+__all__ = ["LatticeParams", "LatticeScene", "lattice_configuration", "bisect_scale",
+           "lattice", "PaperLatticeParams", "paper_lattice", "LATTICE_AXES"]
+
+#: The fidelity knobs the lattice scenes declare (read by the fidelity study): the
+#: boundary-integral order and GMRES tolerance span the grid; ``m`` sets the size.
+LATTICE_AXES = FidelityAxes(rows="p", columns="eps_gmres", model_knob="model",
+                            grid_models=("", "bim"), size_param="m")
 
 
 @dataclass(frozen=True)
@@ -87,7 +94,7 @@ class LatticeParams(CheckedParams):
     low : list of str
         Low-fidelity operators per LCP (``rpy``, ``self``, ``p4``, ``p4e6``, the
         distance-split ``p8f6e3`` and its compressed ``p8f6r3e3``, ...;
-        :func:`.contacts.parse_fidelity`).
+        :func:`.fidelity.parse_fidelity`).
     force : float
         Free-sphere drift speed of the centroid pull (length / time).
     torque : float
@@ -104,10 +111,8 @@ class LatticeParams(CheckedParams):
         radius), so that a correct solve never makes spheres touch, the
         boundary-integral model (which refuses overlapping spheres) can be
         evaluated at every step, and the active contacts sit where that model
-        still means something: at gap 0.1a the p = 8 squeeze mobility of two
-        spheres is within 7% of the exact series, at 0.01a its relative error is
-        about 3 (docs/mobility.md; measured with
-        ``benchmarks/mobility_accuracy.py``).
+        still means something (docs/mobility.md, "Measured choices behind the
+        defaults").
     """
 
     m: Annotated[int, Bounds(ge=1)] = 3
@@ -152,57 +157,6 @@ class PaperLatticeParams(LatticeParams):
     spacing: Annotated[float, Bounds(gt=0)] = 2.5
     separation: Annotated[float, Bounds(ge=0)] = 0.3
     delta: Annotated[float, Bounds(ge=0)] = 0.63
-
-
-@dataclass
-class StepRecord:
-    """What one time step did.
-
-    Attributes
-    ----------
-    step : int
-        0-based step index.
-    n : int
-        Contacts in the step's LCP.
-    result : SolveResult
-        The solve (counted MVPs, E-MVPs, verified residuals, time).
-    x : ndarray
-        Contact forces used for the update.
-    pairs : ndarray, shape (n, 2)
-        Pair identities of the contacts.
-    setup_s, update_s, total_s : float
-        Seconds building the LCP (contacts, mobility, ``U_nc``, cost timing),
-        moving the spheres, and the whole step.
-    max_overlap : float
-        Largest overlap of any two spheres after the step (0 if none).
-    min_gap : float
-        Smallest gap among the step's contacts before the step (nan if none).
-    setup_solves, update_solves : int
-        Mobility solves outside the solver's counted MVPs.
-    warm_entries : int
-        Non-zero entries of the warm start carried from the previous step.
-    qn_memory : bool
-        The solve started from the previous step's secant pairs (``qn_memory=True``).
-    qn_pairs : int
-        Secant pairs that survived the mapping onto this step's contacts (0
-        without memory, or when none survived).
-    """
-
-    step: int
-    n: int
-    result: Any
-    x: np.ndarray
-    pairs: np.ndarray
-    setup_s: float
-    update_s: float
-    total_s: float
-    max_overlap: float
-    min_gap: float
-    setup_solves: int
-    update_solves: int
-    warm_entries: int = 0
-    qn_memory: bool = False
-    qn_pairs: int = 0
 
 
 def lattice_configuration(m: int, spacing: float, jitter: float,
@@ -275,6 +229,8 @@ def bisect_scale(points: np.ndarray, radii: np.ndarray, delta: float, n_desired:
 class LatticeScene:
     """A lattice of Janus-like spheres packing into a cluster (see the module docs).
 
+    The reference implementation of :class:`lcpbench.core.scene.Scene`.
+
     Parameters
     ----------
     m : int
@@ -298,6 +254,8 @@ class LatticeScene:
     step_index : int
         Steps taken so far.
     """
+
+    fidelity_axes = LATTICE_AXES
 
     def __init__(self, m: int = 3, *, params: Optional[LatticeParams] = None, **kwargs):
         if params is not None and kwargs:
@@ -326,21 +284,6 @@ class LatticeScene:
         self._prev_pairs = np.empty((0, 2), dtype=np.intp)
         self._prev_x = np.empty(0)
         self._prev_memory: Optional[SecantMemory] = None
-        self._problem: Optional[ContactProblem] = None
-
-    # ------------------------------------------------------------------ construction
-    @classmethod
-    def from_params(cls, params: LatticeParams) -> LatticeScene:
-        """A scene from a parameter dataclass."""
-        return cls(params=params)
-
-    @classmethod
-    def from_spec(cls, spec: str) -> LatticeScene:
-        """A scene from ``lattice:m=3,model=rpy,...``."""
-        scene = make_scene(spec)
-        if not isinstance(scene, cls):
-            raise ValueError(f"{spec!r} is not a lattice scene")
-        return scene
 
     def get_state(self) -> dict:
         """The state that evolves from step to step, as arrays (for simulation checkpoints).
@@ -372,7 +315,6 @@ class LatticeScene:
         S = np.asarray(state.get("memory_S", np.zeros((0, 0))), dtype=np.float64)
         Y = np.asarray(state.get("memory_Y", np.zeros((0, 0))), dtype=np.float64)
         self._prev_memory = SecantMemory(S, Y) if S.ndim == 2 and S.shape[1] else None
-        self._problem = None
 
     def fidelity_knobs(self, name: str) -> dict:
         """The knobs of low-fidelity ``name`` at this scene's order and tolerance.
@@ -380,7 +322,7 @@ class LatticeScene:
         ``{"model": "bim", "p": 4, "eps_gmres": 1e-6}`` for ``p4e6``; ``rpy`` and
         ``self`` name the analytic models. Raises ``ValueError`` for an unknown name.
         """
-        return parse_fidelity(name, self.params.p, self.params.eps_gmres)
+        return parse_fidelity(name, self.params.p, self.params.eps_gmres).knobs()
 
     @property
     def M(self) -> int:
@@ -422,29 +364,34 @@ class LatticeScene:
         memory = self._prev_memory.remap(index)
         return memory if memory.rank else None
 
+    def keep_memory(self, memory) -> None:
+        """Keep a solve's secant pairs for the next step (anything but a
+        :class:`SecantMemory`, None included, forgets them)."""
+        self._prev_memory = memory if isinstance(memory, SecantMemory) else None
+
     def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None,
               lows: Optional[Sequence[str]] = None) -> ContactProblem:
         """The current step's contact problem (contacts, mobility, ``U_nc``, LCP).
 
         ``lows`` names the scene's low fidelities to build (default: all of ``params.low``);
         a single-fidelity solver needs none, and each one costs a mobility set-up and a
-        timed product per step.  ``symmetrize`` is passed to
-        :func:`.contacts.build_contact_problem` (default:
-        the boundary-integral operators are symmetrised with the adjoint solve)."""
+        timed product per step.  ``symmetrize`` is the option of
+        :class:`.problem.ContactOptions` (default: the boundary-integral operators are
+        symmetrised with the adjoint solve)."""
         P = self.params
         F, T = self.loads()
+        options = ContactOptions(dt=P.dt, delta=P.delta, separation=P.separation,
+                                 model=P.model, p=P.p, eps_gmres=P.eps_gmres, mu=P.mu,
+                                 low=P.low if lows is None else tuple(lows),
+                                 symmetrize=symmetrize)
         problem = build_contact_problem(
-            self.centers, self.radii, F, T, dt=P.dt, delta=P.delta, separation=P.separation,
-            model=P.model, p=P.p,
-            eps_gmres=P.eps_gmres, mu=P.mu, low=P.low if lows is None else tuple(lows),
-            symmetrize=symmetrize,
+            self.centers, self.radii, F, T, options=options,
             name=f"lattice-m{P.m}-step{self.step_index}",
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
         if warm_start and problem.contacts.n:
             x0 = self.warm_start(problem)
             if np.any(x0):
                 problem.lcp.x0 = x0
-        self._problem = problem
         return problem
 
     def advance(self, problem: ContactProblem, x: np.ndarray) -> tuple[float, int]:
@@ -496,9 +443,8 @@ class LatticeScene:
             secant pairs (:meth:`carry_memory`; the PQN solvers use it, others
             ignore it) and keep this solve's pairs for the next step. Off by
             default so that a stepped scene follows the trajectory ``lcpbench
-            generate`` stores; ``lcpbench simulate`` turns it on (it saves
-            PQN solvers a third to a half of their MVPs: docs/benchmarks.md,
-            "Quasi-Newton memory across time steps").
+            generate`` stores; ``lcpbench simulate`` turns it on (what it saves:
+            docs/benchmarks.md, "Quasi-Newton memory across time steps").
         params : dict, optional
             Extra solver parameters.
         lows : list of str, optional
@@ -506,30 +452,10 @@ class LatticeScene:
 
         Returns
         -------
-        StepRecord
+        lcpbench.core.scene.StepRecord
         """
-        from lcpbench.core.api import run_solver
-
-        t0 = time.perf_counter()
-        problem = self.build(warm_start, lows=lows)
-        t1 = time.perf_counter()
-        lcp = problem.lcp
-        memory = self.carry_memory(problem) if qn_memory else None
-        res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, state=memory,
-                         params=params)
-        t2 = time.perf_counter()
-        step = self.step_index
-        overlap, solves = self.advance(problem, res.x)
-        self._prev_memory = res.state if qn_memory and isinstance(res.state, SecantMemory) \
-            else None
-        t3 = time.perf_counter()
-        return StepRecord(step=step, n=lcp.n, result=res, x=np.asarray(res.x, float),
-                          pairs=problem.contacts.pairs.copy(), setup_s=t1 - t0,
-                          update_s=t3 - t2, total_s=t3 - t0, max_overlap=overlap,
-                          min_gap=float(problem.contacts.gaps.min()) if lcp.n else float("nan"),
-                          setup_solves=problem.setup_solves, update_solves=solves,
-                          warm_entries=0 if lcp.x0 is None else int(np.count_nonzero(lcp.x0)),
-                          qn_memory=bool(qn_memory), qn_pairs=0 if memory is None else memory.rank)
+        return step_scene(self, solver, tol=tol, stop=stop, budget=budget,
+                          warm_start=warm_start, qn_memory=qn_memory, params=params, lows=lows)
 
     def __repr__(self) -> str:
         P = self.params

@@ -159,40 +159,12 @@ def field_buffers(p: int) -> tuple:
 
 
 @njit(cache=True, fastmath=False)
-def unit_field(xi: np.ndarray, D: np.ndarray, p: int, I: np.ndarray,
-               u: np.ndarray, G: np.ndarray, gP: np.ndarray) -> float:
-    """Velocity, velocity gradient and pressure of a unit-sphere single layer.
-
-    Parameters
-    ----------
-    xi : ndarray, shape (3,)
-        Evaluation point, ``|xi| > 1``.
-    D : complex ndarray, shape (5, p+1, p+1)
-        Folded coefficients (Phi, chi, P_alpha, P_beta, P), already multiplied by
-        ``K_nm``.
-    p : int
-        Degree of the density.
-    I : complex ndarray, shape (>= p+3, >= p+3)
-        Work buffer for the solid harmonics.
-    u, G, gP : ndarray, shapes (3,), (3, 3), (3,)
-        Outputs: velocity (mu = 1), ``G[i, j] = d u_i / d x_j`` and the pressure
-        gradient.
-
-    Returns
-    -------
-    float
-        The pressure (mu = 1).
-    """
-    solid_harmonics(xi[0], xi[1], xi[2], p + 2, I)
-    # accumulators: gradients (3) and Hessians (xx, yy, zz, xy, xz, yz)
-    gF = np.zeros(3, dtype=np.complex128)
-    hF = np.zeros(6, dtype=np.complex128)
-    gC = np.zeros(3, dtype=np.complex128)
-    hC = np.zeros(6, dtype=np.complex128)
-    gA = np.zeros(3, dtype=np.complex128)
-    hA = np.zeros(6, dtype=np.complex128)
-    gB = np.zeros(3, dtype=np.complex128)
-    gPc = np.zeros(3, dtype=np.complex128)
+def _accumulate(D: np.ndarray, p: int, I: np.ndarray, gF: np.ndarray, hF: np.ndarray,
+                gC: np.ndarray, hC: np.ndarray, gA: np.ndarray, hA: np.ndarray,
+                gB: np.ndarray, gPc: np.ndarray) -> tuple:
+    """The sums of :func:`unit_field` over the degrees and orders: adds the gradients and
+    Hessians of the solid harmonics weighted by the folded coefficients ``D`` to the
+    accumulators, and returns the values ``(sum D_beta I, sum D_P I)``."""
     vB = 0j
     vP = 0j
     for n in range(p + 1):
@@ -239,6 +211,45 @@ def unit_field(xi: np.ndarray, D: np.ndarray, p: int, I: np.ndarray,
             hA[3] += dA * hxy
             hA[4] += dA * hxz
             hA[5] += dA * hyz
+    return vB, vP
+
+
+@njit(cache=True, fastmath=False)
+def unit_field(xi: np.ndarray, D: np.ndarray, p: int, I: np.ndarray,
+               u: np.ndarray, G: np.ndarray, gP: np.ndarray) -> float:
+    """Velocity, velocity gradient and pressure of a unit-sphere single layer.
+
+    Parameters
+    ----------
+    xi : ndarray, shape (3,)
+        Evaluation point, ``|xi| > 1``.
+    D : complex ndarray, shape (5, p+1, p+1)
+        Folded coefficients (Phi, chi, P_alpha, P_beta, P), already multiplied by
+        ``K_nm``.
+    p : int
+        Degree of the density.
+    I : complex ndarray, shape (>= p+3, >= p+3)
+        Work buffer for the solid harmonics.
+    u, G, gP : ndarray, shapes (3,), (3, 3), (3,)
+        Outputs: velocity (mu = 1), ``G[i, j] = d u_i / d x_j`` and the pressure
+        gradient.
+
+    Returns
+    -------
+    float
+        The pressure (mu = 1).
+    """
+    solid_harmonics(xi[0], xi[1], xi[2], p + 2, I)
+    # accumulators: gradients (3) and Hessians (xx, yy, zz, xy, xz, yz)
+    gF = np.zeros(3, dtype=np.complex128)
+    hF = np.zeros(6, dtype=np.complex128)
+    gC = np.zeros(3, dtype=np.complex128)
+    hC = np.zeros(6, dtype=np.complex128)
+    gA = np.zeros(3, dtype=np.complex128)
+    hA = np.zeros(6, dtype=np.complex128)
+    gB = np.zeros(3, dtype=np.complex128)
+    gPc = np.zeros(3, dtype=np.complex128)
+    vB, vP = _accumulate(D, p, I, gF, hF, gC, hC, gA, hA, gB, gPc)
     x0 = xi[0]
     x1 = xi[1]
     x2 = xi[2]

@@ -43,7 +43,7 @@ __all__ = ["SphereGrid", "VSHBasis", "SelfOperators", "sphere_grid", "vsh_basis"
            "self_operators", "s_eigenvalue", "traction_eigenvalue", "knm_table",
            "rigid_density", "net_force_torque", "expansion_coefficients", "default_quad_tol",
            "grid_levels", "sampled_basis", "upsampling_matrix", "quadrature_errors", "quadrature_radius",
-           "RHO_GRID"]
+           "RHO_GRID", "expansion_factors", "coefficient_matrix"]
 
 TYPES = ("V", "W", "X")
 
@@ -325,7 +325,7 @@ def self_operators(p: int) -> SelfOperators:
 
 
 @cache
-def _expansion_factors(p: int) -> np.ndarray:
+def expansion_factors(p: int) -> np.ndarray:
     """Factors (5, 3, p+1, p+1) folding (C_V, C_W, C_X) into (Phi, chi, P_alpha, P_beta, P)."""
     n = np.arange(p + 1, dtype=float)[:, None] * np.ones((1, p + 1))
     K = knm_table(p)
@@ -342,11 +342,11 @@ def _expansion_factors(p: int) -> np.ndarray:
 
 
 @cache
-def _coefficient_matrix(p: int) -> np.ndarray:
+def coefficient_matrix(p: int) -> np.ndarray:
     """Complex ``(5 (p+1)^2, 3N)`` matrix: grid density -> folded expansion coefficients."""
     b = vsh_basis(p)
     Q = (b.to_complex @ b.A).reshape(3, p + 1, p + 1, -1)
-    F = np.einsum("fknm,knmx->fnmx", _expansion_factors(p), Q).reshape(5 * (p + 1) ** 2, -1)
+    F = np.einsum("fknm,knmx->fnmx", expansion_factors(p), Q).reshape(5 * (p + 1) ** 2, -1)
     F = np.ascontiguousarray(F.T)
     F.setflags(write=False)
     return F
@@ -370,7 +370,7 @@ def expansion_coefficients(p: int, sigma: np.ndarray) -> np.ndarray:
         sphere; the density's own units carry through).
     """
     sigma = np.asarray(sigma, dtype=float)
-    return (sigma @ _coefficient_matrix(p)).reshape(-1, 5, p + 1, p + 1)
+    return (sigma @ coefficient_matrix(p)).reshape(-1, 5, p + 1, p + 1)
 
 
 # ---- accuracy of direct quadrature between spheres -----------------------------------------

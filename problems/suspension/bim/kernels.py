@@ -347,8 +347,6 @@ def dense_rows(X: np.ndarray, W: np.ndarray) -> np.ndarray:
     """``X @ W`` for the small dense products of every product (per-sphere self operators,
     preconditioner, spherical-harmonic analysis and synthesis) by BLAS.  Inside the
     solves BLAS runs on one thread (the solvers hold it there with threadpoolctl, beside
-    the parallel compiled kernels).  Measured on 27 spheres at p = 8 (a 27 x 432 by
-    432 x 432 product), one-thread BLAS took 0.3 ms where the compiled row loop that
-    did this before took 12.7 ms on the loaded 2-core machine
-    (``benchmarks/live_operator.py``, docs/benchmarks.md)."""
+    the parallel compiled kernels; its speed against a compiled row loop:
+    ``benchmarks/live_operator.py``, docs/benchmarks.md)."""
     return np.ascontiguousarray(X) @ W

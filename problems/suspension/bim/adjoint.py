@@ -1,40 +1,33 @@
 """Exact transposes of the pieces of the boundary-integral mobility (``BimMobility.rmatvec``).
 
-The mobility is ``M = R P G^{-1} Bt`` with ``Bt`` = :meth:`bim.BimMobility.rhs`, ``G v =
+The mobility is ``M = R P G^{-1} Bt`` with ``Bt`` = :meth:`.setup.BimSetup.rhs`, ``G v =
 A_bie(P v)`` (``A_bie`` the traction operator, ``P`` the one-body preconditioner) and ``R``
 the read-off of the rigid velocities, so ``M' = Bt' G^{-T} P' R'`` with ``G' = P' A_bie'``.
 Every piece here is the exact transpose of the discrete forward piece at full accuracy:
-the self operators and the read-off as dense per-sphere matrices, the stored near blocks
-as they are, the on-the-fly expansions, the Faxen read-off and the direct sums by the
-transposed compiled kernels (:mod:`kernels_adjoint`), and with ``far="fmm"`` the FMM sum
-by a stresslet FMM.  The extra memory is one complex array of ``5 (p+1)^2`` coefficients
-per sphere (0.8 MB at M = 125, p = 8), a few ``3N x 3N`` one-sphere matrices and index
-arrays, built on first use; no per-pair matrices.
+the self operators and the read-off as dense per-sphere matrices, the near-field blocks by
+their own ``add_transpose`` (:mod:`.blocks`, :mod:`.split`), the on-the-fly expansions, the
+Faxen read-off and the direct sums by the transposed compiled kernels
+(:mod:`.kernels_adjoint`), and with ``far="fmm"`` the FMM sum by a stresslet FMM.  The extra
+memory is one complex array of ``5 (p+1)^2`` coefficients per sphere, a few ``3N x 3N``
+one-sphere matrices and index arrays, built on first use; no per-pair matrices.  The pieces
+read the shared :class:`.setup.BimSetup`; they hold no reference to an operator.
 """
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-from typing import TYPE_CHECKING
-
 import numpy as np
-import scipy.sparse as sp
 
-from .bim_pairs import csr
 from .kernels import PARALLEL_WORK, dense_rows
 from .kernels_adjoint import (
-    apply_blocks_adjoint,
-    apply_blocks_adjoint_serial,
     center_readout_adjoint,
     direct_traction_adjoint,
     direct_traction_adjoint_serial,
     direct_traction_adjoint_skip,
     traction_expansion_adjoint,
 )
-from .sphere_vsh import SphereGrid, _coefficient_matrix, sphere_grid
-
-if TYPE_CHECKING:
-    from .bim import BimMobility
+from .pairs import csr
+from .setup import BimSetup
+from .sphere_vsh import SphereGrid, coefficient_matrix, sphere_grid
 
 __all__ = ["AdjointPieces"]
 
@@ -79,61 +72,46 @@ def fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.n
     return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)
 
 
-_READS = ("M", "p", "mu", "far", "quad_tol", "centers", "radii", "plan", "basis", "readout",
-          "self_ops", "tgt_pts", "tgt_nrm")
-"""The attributes of :class:`bim.BimMobility` the transposed pieces use."""
-
-
 class AdjointPieces:
-    """Transposed pieces of one :class:`bim.BimMobility` (structures built once).
+    """Transposed pieces of the operator on one :class:`.setup.BimSetup` (structures built
+    once).
 
     Parameters
     ----------
-    op : BimMobility
-        The forward operator; its pair set-up is reused as it is.
+    setup : BimSetup
+        The shared set-up; its pair plan is reused as it is.
+    near : StoredBlocks or SplitBlocks
+        The near-field part of the operator whose transpose this is.
     """
 
-    def __init__(self, op: BimMobility) -> None:
-        # what the pieces read of the operator, not the operator itself (which holds the
-        # pieces: a reference cycle would keep every configuration's arrays alive until
-        # Python's cyclic collector runs)
-        self.op = SimpleNamespace(**{k: getattr(op, k) for k in _READS})
-        plan = op.plan
-        so = op.self_ops
+    def __init__(self, setup: BimSetup, near) -> None:
+        self.setup, self.near = setup, near
+        plan = setup.plan
+        so = setup.self_ops
         self.self_block = np.ascontiguousarray(so.Kp + so.L)
         self.precond = np.ascontiguousarray(so.precond)
-        self.analysis = np.ascontiguousarray(op.basis.A)
-        self.read = np.ascontiguousarray(op.readout)
+        self.analysis = np.ascontiguousarray(setup.basis.A)
+        self.read = np.ascontiguousarray(setup.readout)
         self.proj = None if plan.near_proj is None else np.ascontiguousarray(plan.near_proj)
         self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in plan.synth]
-        self.tgt = tuple(np.ascontiguousarray(a[:, k]) for a in (op.tgt_pts, op.tgt_nrm)
+        self.tgt = tuple(np.ascontiguousarray(a[:, k]) for a in (setup.tgt_pts, setup.tgt_nrm)
                          for k in range(3))
-        Cm = _coefficient_matrix(op.p)                          # (3N, 5 (p+1)^2), D = s @ Cm
+        Cm = coefficient_matrix(setup.p)                        # (3N, 5 (p+1)^2), D = s @ Cm
         self.coef = np.ascontiguousarray(np.vstack([Cm.T.real, -Cm.T.imag]))
         # direct sums at full accuracy (rung 0), grouped by source range; with far="fmm"
         # also the native-grid pairs the forward product subtracts from the FMM sum
         self.direct = _group_ranges(*plan.dir_ranges[0], plan.N) if plan.n_src else None
-        self.fmm_sub = _group_ranges(*plan.fmm_sub, plan.N) if op.far == "fmm" else None
+        self.fmm_sub = _group_ranges(*plan.fmm_sub, plan.N) if setup.far == "fmm" else None
         # on-the-fly expansion pairs, by source sphere
         self.fly = [self._fly_group(ptr, idx, grid, projected) for ptr, idx, grid, projected in (
             (plan.fly_ptr, plan.fly_idx, plan.near_grid, plan.near_proj is not None),
             (plan.flyn_ptr, plan.flyn_idx, plan.grid, False)) if idx.size]
-        # stored blocks, by source sphere
-        if plan.n_block_pairs:
-            order = np.argsort(plan.block_src, kind="stable").astype(np.int64)
-            self.blk_order = order
-            self.blk_ptr = np.searchsorted(plan.block_src[order],
-                                           np.arange(op.M + 1)).astype(np.int64)
-            nb = plan.block_src.size
-            # sums per-block adjoint parts by source sphere (the paired product)
-            self.by_source = sp.csr_matrix((np.ones(nb), (plan.block_src, np.arange(nb))),
-                                           shape=(op.M, nb))
 
     def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid: SphereGrid,
                    projected: bool) -> dict:
         """Structures of one group of on-the-fly expansion pairs (target lists ``ptr``/``idx``)
         evaluated on ``grid``: target points and pairs by source sphere."""
-        op = self.op
+        op = self.setup
         tgt_i = np.nonzero(np.diff(ptr))[0]
         nodes = grid.nodes
         lists: list[list[int]] = [[] for _ in range(op.M)]
@@ -150,13 +128,13 @@ class AdjointPieces:
     def _expansion(self, Dbar: np.ndarray) -> np.ndarray:
         """Transpose of :func:`sphere_vsh.expansion_coefficients`: complex adjoint
         coefficients (M, 5, p+1, p+1) -> grid densities (M, 3N)."""
-        flat = Dbar.reshape(self.op.M, -1)
+        flat = Dbar.reshape(self.setup.M, -1)
         return dense_rows(np.hstack([flat.real, flat.imag]), self.coef)
 
     def _near_on_the_fly(self, ob: np.ndarray) -> np.ndarray:
         """Transpose of the on-the-fly expansion pairs of the forward product (projected
         zone and node-sampled pairs beyond it) for adjoint tractions ``ob`` (M, 3N)."""
-        op = self.op
+        op = self.setup
         p = op.p
         Dbar = np.zeros((op.M, 5, p + 1, p + 1), dtype=np.complex128)
         for g in self.fly:
@@ -170,7 +148,7 @@ class AdjointPieces:
                        coef_bar: np.ndarray) -> None:
         """Transpose of the forward source forces: adds the adjoint point forces to the
         densities ``s_bar`` (native levels) and to the VSH coefficients ``coef_bar``."""
-        plan = self.op.plan
+        plan = self.setup.plan
         for L, q in enumerate(plan.levels):
             J = plan.lvl_spheres[L]
             if J.size == 0:
@@ -191,13 +169,8 @@ class AdjointPieces:
         product removes are removed by transposed direct sums, so the adjoint matches the
         forward to the FMM tolerance."""
         out, coef_bar, ob = self.apply_bie_unblocked(w)
-        plan = self.op.plan
         if coef_bar is not None:
-            if plan.n_block_pairs:
-                fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
-                      else apply_blocks_adjoint_serial)
-                fn(plan.blocks, self.blk_ptr, self.blk_order, plan.block_tgt,
-                   dense_rows(ob, plan.block_synth_T), coef_bar)
+            self.near.add_transpose(ob, coef_bar)
             out += dense_rows(coef_bar, self.analysis)
         return out.reshape(-1)
 
@@ -207,7 +180,7 @@ class AdjointPieces:
         ``(out, coef_bar, ob)`` with ``out`` of shape ``(M, 3N)``, ``coef_bar`` the adjoint
         VSH coefficients gathered so far (None for one sphere; the caller adds the blocks'
         share and then ``coef_bar @ analysis`` to ``out``) and ``ob = w`` as ``(M, 3N)``."""
-        op, plan = self.op, self.op.plan
+        op, plan = self.setup, self.setup.plan
         M, N = op.M, plan.N
         ob = np.ascontiguousarray(np.asarray(w, dtype=float).reshape(M, 3 * N))
         out = dense_rows(ob, self.self_block)
@@ -242,20 +215,20 @@ class AdjointPieces:
 
     def precondition(self, z: np.ndarray) -> np.ndarray:
         """Transpose of the one-body preconditioner ``P``."""
-        return dense_rows(z.reshape(self.op.M, -1), self.precond).reshape(-1)
+        return dense_rows(z.reshape(self.setup.M, -1), self.precond).reshape(-1)
 
     def operator(self, v: np.ndarray) -> np.ndarray:
         """``G' v = P' A_bie' v``, the transpose of the preconditioned GMRES operator."""
         return self.precondition(self.apply_bie(v))
 
     def velocities(self, u: np.ndarray) -> np.ndarray:
-        """Transpose of :meth:`bim.BimMobility.velocities`: rigid velocities (M, 6) ->
+        """Transpose of :meth:`.setup.BimSetup.velocities`: rigid velocities (M, 6) ->
         stacked densities.
 
         The self read-off is a dense (6, 3N) matrix per sphere; the Faxen read-off of the
         other spheres' expansions is transposed by a compiled kernel
         (:func:`kernels_adjoint.center_readout_adjoint`), no per-pair matrices are stored."""
-        op = self.op
+        op = self.setup
         M, p = op.M, op.p
         u = np.ascontiguousarray(np.asarray(u, dtype=float).reshape(M, 6))
         us = np.empty((M, 6))
@@ -269,9 +242,9 @@ class AdjointPieces:
         return s.reshape(-1)
 
     def rhs(self, w: np.ndarray) -> np.ndarray:
-        """Transpose of :meth:`bim.BimMobility.rhs`: stacked densities -> (F, T) per sphere
+        """Transpose of :meth:`.setup.BimSetup.rhs`: stacked densities -> (F, T) per sphere
         (length 6M)."""
-        op = self.op
+        op = self.setup
         w = np.asarray(w, dtype=float).reshape(op.M, op.plan.N, 3)
         a = op.radii[:, None]
         out = np.empty((op.M, 6))

@@ -1,13 +1,22 @@
 """Pair set-up of the boundary-integral mobility: how each pair of spheres interacts.
 
-Built once per configuration by :class:`bim.BimMobility` and reused by every forward and
-transposed product: which ordered pairs are summed by direct quadrature on which source
-grid at each accuracy rung of relaxed GMRES, which get exact-expansion blocks (stored
+Built once per configuration by :class:`.setup.BimSetup` and reused by every forward,
+transposed and split product: which ordered pairs are summed by direct quadrature on which
+source grid at each accuracy rung of relaxed GMRES, which get exact-expansion blocks (stored
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
+
+The stored near-field blocks are built directly here (:meth:`PairPlan._build_blocks`, one
+exact-expansion response per pair).  This is the one place where precomputed rotation
+tables would enter: a block of a pair at scaled distance ``rho`` along a direction is the
+block of a tabulated pair at ``rho`` along the z axis rotated into that direction, so a
+table lookup and a rotation of the coefficients would replace the direct build, and
+nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`, :mod:`.adjoint`) changes.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -15,25 +24,46 @@ from .kernels import real_block_columns, traction_response
 from .sphere_vsh import (
     SphereGrid,
     VSHBasis,
-    _expansion_factors,
+    expansion_factors,
     grid_levels,
     quadrature_radius,
     sampled_basis,
     sphere_grid,
 )
 
-__all__ = ["PairPlan", "PROJECT_RHO", "RELAX_STEP", "csr"]
+__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "csr"]
 
 PROJECT_RHO = 3.0
 """Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
 with the projected near field, whatever the quadrature tolerance, so that the
 discretisation does not change with ``eps_gmres``; beyond, values at the nodes
-(quadrature, or expansions at tight tolerances).  Measured on a packed 27-sphere
-cluster (gaps >= 0.1a) at p = 6: zone radii 2, 3, 4, 6 give asymmetries 6.7e-4, 2.2e-4,
-1.9e-4, 1.9e-4."""
+(quadrature, or expansions at tight tolerances).  The measured choice of the radius:
+docs/mobility.md, "Measured choices behind the defaults"."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
+
+
+class Grids(NamedTuple):
+    """The grids and bases of one order ``p`` that the pair plan is built on.
+
+    Attributes
+    ----------
+    p : int
+        Spherical-harmonic order.
+    grid, near_grid : SphereGrid
+        Native order-p grid and the finer grid of the projected near field.
+    near_proj : ndarray or None
+        Projection from the finer grid onto degree p (None: node sampling).
+    basis : VSHBasis
+        Vector spherical harmonics of order p (analysis, synthesis, complex form).
+    """
+
+    p: int
+    grid: SphereGrid
+    near_grid: SphereGrid
+    near_proj: np.ndarray | None
+    basis: VSHBasis
 
 
 def csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -57,22 +87,14 @@ class PairPlan:
     ----------
     centers, radii : ndarray
         Checked configuration, shapes (M, 3) and (M,).
-    p : int
-        Spherical-harmonic order.
+    grids : Grids
+        The order, the native and near-field grids, the near-field projection and the basis.
     quad_tol : float
         Quadrature accuracy of the full-accuracy rung.
     far : {"direct", "fmm"}
         Far-field engine (the FMM works on the native grid and is not relaxed).
-    grid, near_grid : SphereGrid
-        Native order-p grid and the finer grid of the projected near field.
-    near_proj : ndarray or None
-        Projection from the finer grid onto degree p (None: node sampling).
-    basis : VSHBasis
-        Vector spherical harmonics of order p (analysis, synthesis, complex form).
     near_block_mb : float
         Memory budget of the stored blocks.
-    all_expansion : bool
-        Put every pair in the expansion group (for testing).
 
     Attributes
     ----------
@@ -98,20 +120,32 @@ class PairPlan:
         With ``far="fmm"``: the native-grid ranges removed from the FMM sum.
     """
 
-    def __init__(self, centers: np.ndarray, radii: np.ndarray, p: int, quad_tol: float,
-                 far: str, grid: SphereGrid, near_grid: SphereGrid,
-                 near_proj: np.ndarray | None, basis: VSHBasis, near_block_mb: float,
-                 all_expansion: bool = False) -> None:
-        self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], p
+    def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
+                 quad_tol: float, far: str, near_block_mb: float) -> None:
+        self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
         self.quad_tol, self.far = quad_tol, far
-        self.grid, self.near_grid, self.near_proj = grid, near_grid, near_proj
-        self.N = grid.size
-        self.basis = basis
+        self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
+        self.N = grids.grid.size
+        self.basis = grids.basis
         self.near_block_mb = float(near_block_mb)
-        self._classify(all_expansion)
+        self._classify()
 
-    def _classify(self, all_expansion: bool) -> None:
+    def _classify(self) -> None:
         """Pair classes, tolerance ladder, blocks and source points (see the class)."""
+        level_of, ladder_levels = self._levels()
+        self._build_blocks()
+        level_of = np.where(self.blocked, -2, level_of)
+        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
+        slot = self._sources(ladder_levels)
+        self._ranges(level_of, ladder_levels, slot)
+        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(self.levels)}
+        self.n_far_pairs = int((level_of >= 0).sum())
+        self.n_near_pairs = int((self.level_of == -2).sum())
+
+    def _levels(self) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The source level of every ordered pair at full accuracy (``level_of``: -1 self,
+        -2 expansion, else the index in ``levels``) and at every rung of the tolerance
+        ladder."""
         M, p = self.M, self.p
         c, r = self.centers, self.radii
         levels = grid_levels(p)
@@ -145,9 +179,6 @@ class PairPlan:
             level_of[(level_of >= 0) & (level_of < native)] = native
         if self.near_proj is not None:     # the projected zone: expansions at any tolerance
             level_of[(rho < PROJECT_RHO) & (level_of >= 0)] = -2
-        if all_expansion:
-            level_of[:] = -2
-            np.fill_diagonal(level_of, -1)
         self.level_radii = dict(zip(levels, radius.tolist()))
         ladder_levels = [level_of]
         for tol in tols[1:]:
@@ -155,10 +186,14 @@ class PairPlan:
             ladder_levels.append(np.where(level_of == -2, -2, lv))   # expansion pairs stay
         self.levels = levels
         self.level_of = level_of
-        self._build_blocks()
-        level_of = np.where(self.blocked, -2, level_of)
-        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
-        # sources per level: the spheres any rung of the ladder uses at that level
+        return level_of, ladder_levels
+
+    def _sources(self, ladder_levels: list[np.ndarray]) -> np.ndarray:
+        """Source points and weights of every level (the spheres any rung sums on it) and
+        the synthesis of the upsampled levels; returns each sphere's first point per level
+        (-1 when it is not a source there)."""
+        M, p, levels, native = self.M, self.p, self.levels, self.native
+        c, r = self.centers, self.radii
         self.lvl_spheres, self.lvl_base = [], []
         base = 0
         for L, q in enumerate(levels):
@@ -182,9 +217,16 @@ class PairPlan:
             slot[L, J] = b0 + np.arange(J.size) * g.size
         self.src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
         self.synth = [None if q == p or self.lvl_spheres[L].size == 0
-                       else np.ascontiguousarray(sampled_basis(p, q).T)
-                       for L, q in enumerate(levels)]
-        nq = np.array([sphere_grid(q).size for q in levels], dtype=np.int64)
+                      else np.ascontiguousarray(sampled_basis(p, q).T)
+                      for L, q in enumerate(levels)]
+        return slot
+
+    def _ranges(self, level_of: np.ndarray, ladder_levels: list[np.ndarray],
+                slot: np.ndarray) -> None:
+        """Per rung, the source ranges each target sphere sums (``dir_ranges``), and with
+        ``far="fmm"`` the native ranges removed from the FMM sum (``fmm_sub``)."""
+        M, native = self.M, self.native
+        nq = np.array([sphere_grid(q).size for q in self.levels], dtype=np.int64)
 
         def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
             ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
@@ -197,12 +239,9 @@ class PairPlan:
             # FMM sums all native points; remove its native self and non-native pairs
             self.dir_ranges = [ranges(level_of, lambda lv: lv > native)]
             self.fmm_sub = ranges(np.where(level_of == native, -2, native),
-                                   lambda lv: lv == native)
+                                  lambda lv: lv == native)
         else:
             self.dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
-        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(levels)}
-        self.n_far_pairs = int((level_of >= 0).sum())
-        self.n_near_pairs = int((self.level_of == -2).sum())
 
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
@@ -215,20 +254,20 @@ class PairPlan:
         per sphere (``block_synth``).  The mobility does not change: the traction equation's
         self part keeps degree <= p fields and their nodal complement apart, and everything
         that reaches another sphere or the velocities is the density's degree <= p part, so
-        the complement of a block's output never reaches a velocity (measured: products
-        equal to 4e-16 at eps_gmres 1e-12, same GMRES iterations; ``tests/test_bim.py``).
-        It saves 44% of the block memory and multiply-adds at p = 8 (243 rows, not 432):
-        measured 0.51-0.58x the time of a 27-sphere product at p = 8 (docs/mobility.md)."""
+        the complement of a block's output never reaches a velocity (``tests/test_bim.py``
+        checks it; docs/mobility.md has what it saves).
+
+        This direct build (one exact-expansion response per pair) is where precomputed
+        rotation tables would enter: a table lookup of the pair's scaled distance and a
+        rotation of the coefficients into the pair's direction would replace it."""
         M, p = self.M, self.p
         b = self.basis
         nv = b.B.shape[1]
         flat = np.argmax(np.abs(b.to_complex), axis=0)
         cfac = b.to_complex[flat, np.arange(nv)]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
-        # than p (a stored block is then much cheaper per product than the sum: measured at
-        # M = 64, p = 8, the 1454 pairs summed on grids 10 and 12 took 0.50 s of a 0.74 s
-        # forward product and most of a 1.25 s transposed one; a block costs about as much
-        # to build as two or three such sums, and a step makes hundreds of products)
+        # than p (a stored block is then much cheaper per product than the sum; measured in
+        # docs/mobility.md, "Blocks for fine-grid pairs")
         lv = self.level_of
         fine = [L for L, q in enumerate(self.levels) if q > p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
@@ -241,7 +280,7 @@ class PairPlan:
         nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
         blocked, rest = pairs[:nb], pairs[nb:]
         blocked.sort()                                     # grouped by target sphere
-        fac = np.ascontiguousarray(_expansion_factors(p))
+        fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
         to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
                    False: b.A}

@@ -18,7 +18,7 @@ __all__ = ["relaxed_gmres"]
 
 
 def relaxed_gmres(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: int,
-                  maxiter: int, rungs: int = 1, step: float = 100.0,
+                  maxiter: int, *, rungs: int = 1, step: float = 100.0,
                   relax: float = 1.0) -> tuple[np.ndarray, int, float]:
     """Restarted, optionally relaxed GMRES for ``A x = b`` by ``scipy.sparse.linalg.gmres``.
 

@@ -9,8 +9,8 @@ fidelity's own discretisation near contact and makes the rest cheap:
   (the full order-p density to the degree-p traction coefficients);
 * every other pair acts only through the source density's vector spherical harmonics of
   degree <= q, and its traction on the target is projected onto degree <= q: a
-  ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)`` (about 11 times fewer multiply-adds
-  at q = 4, p = 8), the stored block's rows and columns of degree <= q.  q is
+  ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)``, the stored block's rows and
+  columns of degree <= q.  q is
   ``far_degree`` for the closest of these pairs and falls gently with distance: a pair
   at centre distance R (in source radii) gets the least q with
   ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the distance of a pair at
@@ -24,23 +24,23 @@ fidelity's own discretisation near contact and makes the rest cheap:
   value, and applied as ``U (V' c)``: ``2 nv r`` multiply-adds instead of ``nv^2``.  The
   blocks between spheres are far from full rank at a low's accuracy: the field of a
   degree-l density reaches the target's degree-l' harmonics with weight falling like
-  ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is below 1e-3, and
-  even a near-contact block keeps about 77 of its 241 terms at 1e-3 (measured:
-  docs/mobility.md);
+  ``(a / R)^(l + l' + 1)``, so most of a square degree-truncated block is small at a low's
+  accuracy, near-contact blocks included (the ranks kept: docs/mobility.md);
 * GMRES stops at the low's own tolerance (``1e-3`` is typical).
 
-It is built from a high :class:`bim.BimMobility` and shares its set-up (pairs, stored
-blocks, self operators, preconditioner); only the truncated far blocks are new (and, when
-compressed, their singular value decompositions: about a fifth of the high's set-up time
-on 27 and 64 packed spheres, docs/mobility.md).  Its
+It is built from a high :class:`.operator.BimMobility` and shares its set-up (the same
+:class:`.setup.BimSetup` object: pairs, stored blocks, self operators, preconditioner);
+only its near-field part differs (:class:`SplitBlocks` in place of the stored blocks), and
+only the truncated far blocks are new (and, when compressed, their singular value
+decompositions; their set-up cost is measured in docs/mobility.md).  Its
 transpose is exact (``M.T @ y``: the same pieces transposed, the truncated blocks by the
 compiled block-transpose kernel), but the contact operators of lcpbench use this low
 unsymmetrised, ``D' M D``, with one forward solve per product: the discrete mobility's own
-asymmetry at p = 8, about 4e-5, is far below what a low fidelity is accurate to, and
+asymmetry at p = 8 (docs/mobility.md) is far below what a low fidelity is accurate to, and
 symmetrising would double the low's cost.
 
 Pairs that the high evaluates by direct quadrature rather than a stored block (beyond the
-block budget, from about a hundred spheres at p = 8) stay as they are: the split then
+block budget) stay as they are: the split then
 saves less.  Named ``p<k>f<q>e<j>`` in scene specs and ``lcpbench generate --low``
 (``p8f4e3``: order 8 near contact, degree 4 far field, GMRES 1e-3), and
 ``p<k>f<q>r<i>e<j>`` with the blocks compressed at ``rank_tol = 1e-i`` (``p8f6r3e3``).
@@ -52,8 +52,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .bim import BimMobility
-from .bim_adjoint import AdjointPieces
+from ..geometry import check_tolerance
 from .kernels import (
     PARALLEL_WORK,
     apply_blocks,
@@ -63,8 +62,10 @@ from .kernels import (
     dense_rows,
 )
 from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
+from .operator import BimMobility
+from .pairs import PairPlan
 
-__all__ = ["SplitMobility", "split_mobility", "DEFAULT_NEAR_GAP"]
+__all__ = ["SplitMobility", "SplitBlocks", "split_mobility", "DEFAULT_NEAR_GAP"]
 
 DEFAULT_NEAR_GAP = 0.5
 """Pairs whose gap is below this many source radii keep the full near-field block."""
@@ -139,27 +140,26 @@ class _Group(NamedTuple):
         return part
 
 
-class SplitMobility(BimMobility):
-    """The mobility of a :class:`bim.BimMobility` with the far field truncated in degree.
-
-    Build it with :func:`split_mobility`.  Products (``@``, ``matvec``) solve the traction
-    equation with the split operator to the low's ``eps_gmres``; transposed products
-    (``M.T @ y``, ``rmatvec``, ``matvec_rmatvec``) solve its exact transpose.
+class SplitBlocks:
+    """The near-field part of the split operator (in place of :class:`.blocks.StoredBlocks`):
+    full blocks for the near pairs, degree-truncated (or factored) ones for the far pairs.
 
     Attributes
     ----------
+    groups : list of _Group
+        Blocks stored dense (one group per truncation degree) or factored (one group).
     far_degree : int
         Degree of the far-field truncation.
     near_gap : float
         Gap (in source radii) below which a pair keeps its full block.
+    rank_tol : float or None
+        Relative singular-value cut of the block compression (None: blocks dense).
     n_full_pairs, n_truncated_pairs : int
         Ordered pairs with a full and with a truncated block.
     pairs_per_degree : dict
         Truncation degree -> ordered pairs truncated at it.
     block_work : float
         Multiply-adds of the blocks per product relative to the high's blocks.
-    rank_tol : float or None
-        Relative singular-value cut of the block compression (None: blocks dense).
     mean_rank : float
         Mean number of terms kept per factored block (0 when none is factored).
     n_factored_blocks : int
@@ -169,49 +169,100 @@ class SplitMobility(BimMobility):
         kept (None without compression).
     """
 
-    far_degree: int
-    near_gap: float
-    rank_tol: float | None
+    fused = False
+    """No fused pass: the split blocks differ from the stored ones the fused kernel reads."""
 
-    def _block_part(self, coef: np.ndarray) -> np.ndarray:
-        """The split blocks (the products of the split operator use them in place of the
-        high's stored blocks: self and unblocked pairs as in the high, full blocks for
-        the near pairs, degree-truncated ones for the far pairs), on the grid."""
-        out = np.zeros((self.M, 3 * self._N))
-        for g in self._groups:
+    def __init__(self, plan: PairPlan, *, far_degree: int, near_gap: float, decay: float,
+                 rank_tol: float | None) -> None:
+        self.M, self.N = plan.M, plan.N
+        self.far_degree, self.near_gap, self.rank_tol = int(far_degree), near_gap, rank_tol
+        basis = plan.basis
+        tgt, src = plan.block_tgt, plan.block_src
+        c, r = plan.centers, plan.radii
+        dist = np.linalg.norm(c[tgt] - c[src], axis=1) / r[src]      # in source radii
+        reach = (r[tgt] + r[src]) / r[src] + near_gap                # R0 of each pair
+        degree = np.full(tgt.size, -1)                               # -1: full block
+        far = dist >= reach
+        ratio = (np.log(reach[far]) / np.log(dist[far])) ** decay
+        degree[far] = np.clip(np.ceil((self.far_degree + 1) * ratio - 1e-9) - 1, 1,
+                              self.far_degree)
+        if rank_tol is None:
+            self._dense_groups(plan, degree)
+        else:
+            length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
+                               for q in degree], dtype=np.int64)
+            factors = _factor(plan.blocks, length, rank_tol)
+            self.groups = [_group(None, factors, np.arange(tgt.size), plan, basis.degree.size)]
+            self.n_factored_blocks = int(tgt.size)
+            self.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
+            self.block_sizes, self.block_ranks = length, factors[3]
+        self.n_full_pairs = int((degree < 0).sum())
+        self.n_truncated_pairs = int(far.sum())
+        self.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
+        self.block_work = sum(g.work for g in self.groups) / max(plan.blocks.size, 1)
+
+    def _dense_groups(self, plan: PairPlan, degree: np.ndarray) -> None:
+        """One group of dense blocks per truncation degree (-1: the full near blocks)."""
+        basis = plan.basis
+        self.groups = []
+        for q in np.unique(degree):
+            idx = np.nonzero(degree == q)[0]                     # still sorted by target
+            # the stored blocks are in coefficients on both sides (pairs.py): a near pair
+            # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
+            # the coefficients are ordered by degree)
+            n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
+            if q < 0:
+                blocks = np.ascontiguousarray(plan.blocks[idx])
+            else:
+                blocks = np.empty((idx.size, n_q, n_q))
+                for k0 in range(0, idx.size, _CHUNK):
+                    blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
+            self.groups.append(_group(blocks, None, idx, plan, n_q))
+        self.n_factored_blocks, self.mean_rank = 0, 0.0
+        self.block_sizes = self.block_ranks = None
+
+    def apply(self, coef: np.ndarray) -> np.ndarray:
+        """The split blocks applied to the VSH coefficients ``coef``, on the grid (M, 3N)."""
+        out = np.zeros((self.M, 3 * self.N))
+        for g in self.groups:
             out += dense_rows(g.apply(coef, self.M), g.synth)
         return out
 
-    @property
-    def adjoint_pieces(self) -> AdjointPieces:
-        """The transposed pieces, with the split blocks in place of the high's blocks."""
-        if self._pieces is None:
-            self._pieces = _SplitAdjoint(self)
-        return self._pieces
-
-    def _apply_pair(self, u_f: np.ndarray, u_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``G u_f`` and ``G' u_a`` of the split operator (no fused pass: its blocks differ
-        from the stored ones the fused kernel reads)."""
-        return (self._apply_preconditioned(u_f), self.adjoint_pieces.operator(u_a))
+    def add_transpose(self, ob: np.ndarray, coef_bar: np.ndarray) -> None:
+        """Adds the transposed split blocks' share of adjoint tractions ``ob`` to
+        ``coef_bar``."""
+        for g in self.groups:
+            acc_bar = np.ascontiguousarray(dense_rows(ob, g.synth_T))
+            coef_bar[:, g.sel] += g.apply_transpose(acc_bar, self.M)
 
 
-class _SplitAdjoint(AdjointPieces):
-    """:class:`bim_adjoint.AdjointPieces` of a :class:`SplitMobility`: the unblocked pieces
-    are the high's, the blocks are the split's, transposed."""
+class SplitMobility(BimMobility):
+    """The mobility of a :class:`.operator.BimMobility` with the far field truncated in degree.
 
-    def __init__(self, op: SplitMobility) -> None:
-        super().__init__(op)
-        self.groups = op._groups
+    Build it with :func:`split_mobility`: the high's set-up with :class:`SplitBlocks` as the
+    near-field part.  Products (``@``, ``matvec``) solve the traction equation with the
+    split operator to the low's ``eps_gmres``; transposed products (``M.T @ y``,
+    ``rmatvec``, ``matvec_rmatvec``) solve its exact transpose.  The split's own numbers
+    (``far_degree``, ``block_work``, ``mean_rank``, ...) are those of ``near``
+    (:class:`SplitBlocks`), shown here too.
+    """
 
-    def apply_bie(self, w: np.ndarray) -> np.ndarray:
-        """Transpose of :meth:`SplitMobility._apply_bie`."""
-        out, coef_bar, ob = self.apply_bie_unblocked(w)
-        if coef_bar is not None:
-            for g in self.groups:
-                acc_bar = np.ascontiguousarray(dense_rows(ob, g.synth_T))
-                coef_bar[:, g.sel] += g.apply_transpose(acc_bar, self.op.M)
-            out += dense_rows(coef_bar, self.analysis)
-        return out.reshape(-1)
+    near: SplitBlocks
+
+    def __init__(self, high: BimMobility, near: SplitBlocks, eps_gmres: float) -> None:
+        self._assemble(high.setup, near, eps_gmres=eps_gmres, on_failure=high.on_failure,
+                       maxiter=high.maxiter, recycle=high.recycle)
+
+    def __getattr__(self, name: str):
+        # the split's numbers (far_degree, block_work, ...) are its near part's
+        if name in _SPLIT_NUMBERS:
+            return getattr(self.near, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+
+_SPLIT_NUMBERS = frozenset({"far_degree", "near_gap", "rank_tol", "n_full_pairs",
+                            "n_truncated_pairs", "pairs_per_degree", "block_work", "mean_rank",
+                            "n_factored_blocks", "block_sizes", "block_ranks"})
 
 
 def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
@@ -266,60 +317,19 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
             raise ValueError(f"rank_tol = {rank_tol!r} must be a number in (0, 1), the "
                              "relative singular-value cut of the blocks (e.g. 1e-3), or None")
         rank_tol = cut
-    base = high.at_tolerance(eps_gmres)
-    low = SplitMobility.__new__(SplitMobility)
-    low.__dict__.update(base.__dict__)
-    low.far_degree, low.near_gap, low.rank_tol = int(far_degree), gap_limit, rank_tol
-    low._fresh_solvers()                      # its recycled space applies the split operator
-    plan, basis = high.plan, high.basis
-    tgt, src = plan.block_tgt, plan.block_src
-    c, r = high.centers, high.radii
-    dist = np.linalg.norm(c[tgt] - c[src], axis=1) / r[src]      # in source radii
-    reach = (r[tgt] + r[src]) / r[src] + gap_limit               # R0 of each pair
-    degree = np.full(tgt.size, -1)                               # -1: full block
-    far = dist >= reach
-    ratio = (np.log(reach[far]) / np.log(dist[far])) ** fall
-    degree[far] = np.clip(np.ceil((low.far_degree + 1) * ratio - 1e-9) - 1, 1, low.far_degree)
-    low._groups = []
-    if rank_tol is None:
-        for q in np.unique(degree):
-            idx = np.nonzero(degree == q)[0]                     # still sorted by target
-            # the stored blocks are in coefficients on both sides (bim_pairs): a near pair
-            # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
-            # the coefficients are ordered by degree)
-            n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
-            if q < 0:
-                blocks = np.ascontiguousarray(plan.blocks[idx])
-            else:
-                blocks = np.empty((idx.size, n_q, n_q))
-                for k0 in range(0, idx.size, _CHUNK):
-                    blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
-            low._groups.append(_group(blocks, None, idx, tgt, src, high.M, n_q, plan))
-        low.n_factored_blocks, low.mean_rank = 0, 0.0
-        low.block_sizes = low.block_ranks = None
-    else:
-        length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
-                           for q in degree], dtype=np.int64)
-        factors = _factor(plan.blocks, length, rank_tol)
-        low._groups.append(_group(None, factors, np.arange(tgt.size), tgt, src, high.M,
-                                  basis.degree.size, plan))
-        low.n_factored_blocks = int(tgt.size)
-        low.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
-        low.block_sizes, low.block_ranks = length, factors[3]
-    low.n_full_pairs = int((degree < 0).sum())
-    low.n_truncated_pairs = int(far.sum())
-    low.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
-    low.block_work = sum(g.work for g in low._groups) / max(plan.blocks.size, 1)
-    low._pieces = None                        # its own transposed pieces, built on first use
-    return low
+    eps = check_tolerance(eps_gmres)
+    near = SplitBlocks(high.plan, far_degree=int(far_degree), near_gap=gap_limit, decay=fall,
+                       rank_tol=rank_tol)
+    return SplitMobility(high, near, eps)
 
 
 def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
-           tgt: np.ndarray, src: np.ndarray, M: int, n_coef: int, plan) -> _Group:
+           plan: PairPlan, n_coef: int) -> _Group:
     """The :class:`_Group` of the pairs ``idx`` (sorted by target) of the high's plan, acting
     on the first ``n_coef`` coefficients (their synthesis: the leading rows of the plan's
     ``block_synth``, a view when they are all of them)."""
-    t, s = tgt[idx], np.ascontiguousarray(src[idx])
+    M = plan.M
+    t, s = plan.block_tgt[idx], np.ascontiguousarray(plan.block_src[idx])
     ptr = np.searchsorted(t, np.arange(M + 1)).astype(np.int64)
     order = np.argsort(s, kind="stable").astype(np.int64)            # for the transpose
     src_ptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int64)
