@@ -488,3 +488,19 @@ def test_contact_options_are_one_parameter_object():
         contact_lcp(c, 1.0, tdt=0.1)
     with pytest.raises(ValueError, match="separation = -1.0 must be"):
         ContactOptions(separation=-1)
+
+
+def test_live_operators_declare_their_products_accuracy():
+    """A boundary-integral contact operator declares its GMRES tolerance as the relative
+    accuracy of its products (high and every iterative low), an analytic one declares 0:
+    the framework then neither measures them nor needs a counted product to trust a PQN
+    solver's drift bound."""
+    c = [[0, 0, 0], [2.1, 0, 0], [0, 2.1, 0]]
+    lcp = contact_lcp(c, 1.0, dt=0.1, delta=0.3, model="bim", p=3, eps_gmres=1e-7,
+                      low=["rpy", "p2e5", "p3f2e4"])
+    assert lcp.A.rtol == 1e-7
+    assert {k: op.rtol for k, op in lcp.low.items()} == {"rpy": 0.0, "p2e5": 1e-5,
+                                                         "p3f2e4": 1e-4}
+    assert contact_lcp(c, 1.0, dt=0.1, delta=0.3, model="rpy").A.rtol == 0.0
+    res = run_solver(lcp, "mono-pqn")
+    assert res.solved and res.info.get("operator_accuracy_source", "declared") == "declared"

@@ -68,6 +68,11 @@ class Fidelity:
         stored set records per low fidelity."""
         return {"model": self.model, "p": self.p, "eps_gmres": self.eps_gmres, **self.extra}
 
+    def product_rtol(self) -> float:
+        """The relative accuracy of a product: ``eps_gmres`` for an iterative kind, else 0
+        (what the contact operator declares as ``Operator(rtol=...)``)."""
+        return self.eps_gmres if _KINDS[self.kind].iterative else 0.0
+
     def symmetrized(self, request: Optional[bool] = None) -> bool:
         """Whether the contact operator of this fidelity is symmetrised (with the adjoint
         solve: :mod:`.operators`): its kind's default, or ``request`` when given and the
@@ -130,6 +135,12 @@ class FidelityKind:
         discretisation error).
     symmetrizable : bool
         False for a kind whose contact operator is never symmetrised, even on request.
+    iterative : bool
+        True for a kind whose products are iterative solves at ``eps_gmres``: its contact
+        operator declares that relative accuracy (``Operator(rtol=eps_gmres)``), so the
+        framework holds the stop test no tighter than the products resolve and trusts a
+        drift bound without measuring the operator; False for an analytic model, whose
+        products are exact to rounding (``rtol=0``).
     """
 
     name: str
@@ -139,6 +150,7 @@ class FidelityKind:
     example: str
     symmetrize: bool = False
     symmetrizable: bool = True
+    iterative: bool = False
 
 
 _KINDS: dict[str, FidelityKind] = {}
@@ -298,7 +310,8 @@ def _describe_split(m: re.Match, p: int, eps_gmres: float) -> Fidelity:
 
 register_fidelity(FidelityKind("named", r"rpy|self", _describe_named, _build_analytic, "rpy"))
 register_fidelity(FidelityKind("bim", r"bim|p(\d+)(?:e(\d+))?", _describe_bim, _build_bim, "p4e6",
-                               symmetrize=True))
+                               symmetrize=True, iterative=True))
 # one forward solve per product, never symmetrised (:mod:`.bim.split` says why that is enough)
 register_fidelity(FidelityKind("split", r"p(\d+)(?:f(\d+))?(?:r(\d+))?(?:e(\d+))?",
-                               _describe_split, _build_split, "p8f6r3e3", symmetrizable=False))
+                               _describe_split, _build_split, "p8f6r3e3", symmetrizable=False,
+                               iterative=True))

@@ -271,16 +271,20 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
     sym = (high_fid.symmetrized(opts.symmetrize) if high_fid is not None
            else bool(opts.symmetrize))
     dmd = ContactOperator(contacts.D, mob, symmetrize=sym)
-    high = Operator(dmd.operator(), name="high")
+    # an iterative model declares its products' accuracy (eps_gmres), an analytic one 0
+    high = Operator(dmd.operator(), name="high",
+                    rtol=high_fid.product_rtol() if high_fid is not None else None)
     config = Configuration(c, r, opts.mu, mob, high_fid)
     low_ops, low_mobs = {}, {}
     for key, spec in _low_models(opts.low, opts.p, opts.eps_gmres).items():
         if callable(spec):
             lm, lsym = resolve_mobility(c, r, spec, mu=opts.mu), bool(opts.symmetrize)
+            lrtol = None
         else:
             lm, lsym = build_mobility(spec, config), spec.symmetrized(opts.symmetrize)
+            lrtol = spec.product_rtol()
         low_mobs[key] = lm
-        low_ops[key] = Operator(contact_product(lm, contacts.D, lsym), name=key)
+        low_ops[key] = Operator(contact_product(lm, contacts.D, lsym), name=key, rtol=lrtol)
     if low_ops and contacts.n:
         # the paper recomputes the cost ratio at every time step: time one product of each,
         # at the cost of a first product (measure_cost with cold: no recycled directions)
