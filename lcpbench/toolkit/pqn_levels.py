@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Literal, Optional
+from typing import Annotated, Any, Literal, Optional
 
 import numpy as np
 
@@ -295,128 +295,190 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     state : dict
         ``{"pairs": Pairs, "inner": Pairs|dict}`` to continue later.
     """
-    n = z.shape[0]
-    base = lows[0]
+    task = _Task(apply, stop, max_iter, opts, counters, exact_gradient)
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
-    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
+    diag = DiagonalBFGS(z.shape[0], memory=opts.memory or None, scaling=opts.scaling,
+                        gamma=opts.gamma)
     older = fallback_seed or Pairs()
     diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
-    inner_state = state.get("inner")
+    st = _BiState(lows, diag, hi_pairs, state.get("inner"), rho=model_error,
+                  r_prev=prev_residual, first=warm_start, floor=floor, adaptive=adaptive)
     if model_error is not None and model_error > opts.model_tol:
         # judged useless before the first step: no low product to rebuild the model
         counters.decisions.append("mono:model")
-        return _as_mono(apply, z, G, stop, max_iter, 0, opts, counters, diag, exact_gradient,
-                        hi_pairs, inner_state, None)
-    hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
+        return _as_mono(task, z, G, 0, st)
+    base = lows[0]
+    st.hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
         b if b is not None else base(s) for s, b in zip(hi_pairs.S, hi_pairs.B0S)])
-    model = _rebuild(base, n, hi_pairs)
+    st.model = _rebuild(base, z.shape[0], st.hi_pairs)
     if state.get("model") is not None:  # our pairs were corrected by the caller: so is B
-        inner_state = _carry(inner_state, _delta(state["model"], model), opts)
-    first = warm_start
-    it = streak = 0
+        st.inner_state = _carry(st.inner_state, _delta(state["model"], st.model), opts)
+    it = 0
     reason, ray = "max_iter", None
-    rho = model_error
-    r_prev = prev_residual
     while True:
         if stop(z, G):
             reason = "stop"
             break
         if it >= max_iter:
             break
-        poor = rho is not None and rho > opts.model_tol
-        if poor or (opts.max_fallbacks and streak >= opts.max_fallbacks):
+        poor = st.rho is not None and st.rho > opts.model_tol
+        if poor or (opts.max_fallbacks and st.streak >= opts.max_fallbacks):
             counters.decisions.append("mono:model" if poor else "mono:subproblem")
-            return _as_mono(apply, z, G, stop, max_iter, it, opts, counters, diag,
-                            exact_gradient, hi_pairs, inner_state, model, checked=True)
-        r0 = kkt_abs(z, G)
-        if first:
-            eta_f, cap = opts.warm_rtol, opts.warm_max_iter
-        else:
-            rate = min(x for x in (rho, r0 / r_prev if r_prev else None, np.inf)
-                       if x is not None)
-            eta_f, cap = forcing_term(rate if adaptive else None, opts), opts.inner_max_iter
-            counters.forcing.append(eta_f)
-        first = False
-        r_prev = r0
-        tol_in = max(eta_f * r0, floor)
-
-        def B(v, _m=model):
-            return base(v) + _m.correction(v)
-
-        def inner_stop(zz, GG, _t=tol_in):
-            return kkt_abs(zz, GG) <= _t
-
-        with np.errstate(over="ignore", invalid="ignore"):
-            inner, inner_state_new = _solve_sub(B, lows, z, G, inner_stop, cap, opts,
-                                                counters, inner_state)
-        counters.inner_iterations += inner.iterations
-        p = inner.z - z
-        Bp = inner.G - G
-        ok = inner.reason != "unbounded" and inner.iterations > 0 and \
-            bool(np.all(np.isfinite(inner.z))) and float(G @ p) < 0.0 and float(p @ Bp) > 0.0
-        streak = 0 if ok else streak + 1
-        if not ok:
-            counters.mono_fallbacks += 1
-            counters.decisions.append("fallback")
-            p = pqn_direction(diag, z, G, opts, counters)
-            if p is None:
-                reason = "stationary"
-                break
-            Bp = None
-        else:
-            counters.decisions.append("model")
+            return _as_mono(task, z, G, it, st, checked=True)
+        p, Bp, inner_new = _outer_direction(task, st, z, G)
+        if p is None:
+            reason = "stationary"
+            break
         Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
         if z_new is None:
             reason, ray = "unbounded", (p, Qp)
             break
         it += 1
-        s, y = eta * p, eta * Qp
-        corr = model.correction(p)
-        b0p = base(p) if Bp is None else Bp - corr
-        Bs = eta * (b0p + corr)
-        # the model check: the new high gradient is known; how well did B predict it?
-        rho = model_check(Qp, b0p + corr)
-        counters.model_errors.append(rho)
-        old_model = model
-        model = _copy_model(model)
-        uv = model.update(s, y, Bs)
-        if uv is None:
-            counters.skipped_pairs += 1
-        else:
-            hi_pairs.add(s, y, eta * b0p)
-        diag.add_pair(s, y)
-        delta: Optional[Callable[[np.ndarray], np.ndarray]] = None if uv is None else Rank2(*uv)
-        if opts.memory and len(hi_pairs) > opts.memory:
-            hi_pairs.trim(opts.memory)
-            model = _rebuild(base, n, hi_pairs)
-            delta = _delta(old_model, model)
-        # carry the subproblem's pairs to the next subproblem: Y <- Y + (B_new - B_old) S
-        inner_state = _carry(inner_state_new, delta, opts)
+        _update_models(task, st, _Step(p, Bp, Qp, eta), inner_new)
         z, G = z_new, G_new
         if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
             G = exact_gradient(z)
             counters.recomputes += 1
-    return (LevelOutcome(z, G, reason, it, hi_pairs, ray),
-            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+    return LevelOutcome(z, G, reason, it, st.hi_pairs, ray), st.carried()
 
 
-def _as_mono(apply: Callable, z: np.ndarray, G: np.ndarray, stop: Callable, max_iter: int,
-             it: int, opts: BiOptions, counters: Counters, diag: DiagonalBFGS,
-             exact_gradient: Optional[Callable], hi_pairs: Pairs, inner_state, model,
+@dataclass
+class _Task:
+    """What a level is asked: minimise the quadratic with Hessian product ``apply``
+    until ``stop(z, G)`` holds or ``max_iter`` iterations are spent."""
+
+    apply: Callable
+    stop: Callable
+    max_iter: int
+    opts: BiOptions
+    counters: Counters
+    exact_gradient: Optional[Callable] = None
+
+
+@dataclass
+class _BiState:
+    """The running state of a Bi-PQN level: its models, pairs and forcing history."""
+
+    lows: list
+    diag: DiagonalBFGS                      # the Mono-PQN model of the fallback steps
+    hi_pairs: Pairs                         # (S, Q S, lows[0] S)
+    inner_state: Any                        # the subproblem level's carried pairs / state
+    model: Optional[OperatorBFGS] = None    # B = lows[0] + U U' - V V'
+    rho: Optional[float] = None             # the last model check
+    r_prev: Optional[float] = None          # the last outer residual
+    first: bool = True                      # the next subproblem is the warm start
+    streak: int = 0                         # consecutive fallbacks
+    floor: float = 0.0
+    adaptive: bool = True
+
+    @property
+    def base(self) -> Callable:
+        return self.lows[0]
+
+    def carried(self) -> dict:
+        return {"pairs": self.hi_pairs, "inner": self.inner_state, "model": self.model}
+
+
+@dataclass
+class _Step:
+    """An outer step along ``p``: the model's ``B p`` (None after a fallback), ``Q p``, ``eta``."""
+
+    p: np.ndarray
+    Bp: Optional[np.ndarray]
+    Qp: np.ndarray
+    eta: float
+
+
+def _outer_direction(task: _Task, st: _BiState, z: np.ndarray, G: np.ndarray):
+    """Solve the PQN subproblem at ``z`` to the forcing term's accuracy; fall back if it fails.
+
+    Returns ``(p, Bp, inner_state)``: the direction (None: no descent direction
+    exists), ``B p`` from the inner gradients (None after a Mono-PQN fallback)
+    and the subproblem level's state to carry once the step is taken.
+    """
+    opts, counters = task.opts, task.counters
+    r0 = kkt_abs(z, G)
+    if st.first:
+        eta_f, cap = opts.warm_rtol, opts.warm_max_iter
+    else:
+        rate = min(x for x in (st.rho, r0 / st.r_prev if st.r_prev else None, np.inf)
+                   if x is not None)
+        eta_f, cap = forcing_term(rate if st.adaptive else None, opts), opts.inner_max_iter
+        counters.forcing.append(eta_f)
+    st.first = False
+    st.r_prev = r0
+    tol_in = max(eta_f * r0, st.floor)
+    base, model = st.base, st.model
+    assert model is not None
+
+    def B(v):
+        return base(v) + model.correction(v)
+
+    def inner_stop(zz, GG):
+        return kkt_abs(zz, GG) <= tol_in
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        inner, inner_new = _solve_sub(_Task(B, inner_stop, cap, opts, counters), st.lows, z, G,
+                                      st.inner_state)
+    counters.inner_iterations += inner.iterations
+    p = inner.z - z
+    Bp = inner.G - G
+    ok = inner.reason != "unbounded" and inner.iterations > 0 and \
+        bool(np.all(np.isfinite(inner.z))) and float(G @ p) < 0.0 and float(p @ Bp) > 0.0
+    st.streak = 0 if ok else st.streak + 1
+    if not ok:
+        counters.mono_fallbacks += 1
+        counters.decisions.append("fallback")
+        return pqn_direction(st.diag, z, G, opts, counters), None, inner_new
+    counters.decisions.append("model")
+    return p, Bp, inner_new
+
+
+def _update_models(task: _Task, st: _BiState, step: _Step, inner_new) -> None:
+    """After a step: the model check, the BFGS updates of ``B`` and of the fallback model,
+    and the subproblem's pairs carried with ``Y <- Y + (B_new - B_old) S``."""
+    opts, counters = task.opts, task.counters
+    p, eta = step.p, step.eta
+    s, y = eta * p, eta * step.Qp
+    old_model = st.model
+    assert old_model is not None
+    corr = old_model.correction(p)
+    b0p = st.base(p) if step.Bp is None else step.Bp - corr
+    Bs = eta * (b0p + corr)
+    # the model check: the new high gradient is known; how well did B predict it?
+    st.rho = model_check(step.Qp, b0p + corr)
+    counters.model_errors.append(st.rho)
+    model = _copy_model(old_model)
+    uv = model.update(s, y, Bs)
+    if uv is None:
+        counters.skipped_pairs += 1
+    else:
+        st.hi_pairs.add(s, y, eta * b0p)
+    st.diag.add_pair(s, y)
+    delta: Optional[Callable[[np.ndarray], np.ndarray]] = None if uv is None else Rank2(*uv)
+    if opts.memory and len(st.hi_pairs) > opts.memory:
+        st.hi_pairs.trim(opts.memory)
+        model = _rebuild(st.base, p.shape[0], st.hi_pairs)
+        delta = _delta(old_model, model)
+    st.model = model
+    st.inner_state = _carry(inner_new, delta, opts)
+
+
+def _as_mono(task: _Task, z: np.ndarray, G: np.ndarray, it: int, st: _BiState,
              checked: bool = False) -> tuple[LevelOutcome, dict]:
     """Finish a Bi-PQN level as Mono-PQN on the high-fidelity pairs gathered so far.
 
     The outcome carries Mono-PQN's final pairs (what the model knows at the
     end, for a later solve's memory); the state keeps the Bi-PQN pairs.
     """
-    counters.abandoned_low = True
-    out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
-                     seed=Pairs(list(diag.S), list(diag.Y)),
-                     exact_gradient=exact_gradient, checked=checked)
-    counters.mono_fallbacks += out.iterations
+    task.counters.abandoned_low = True
+    out = mono_level(task.apply, z, G, task.stop, task.max_iter - it, task.opts, task.counters,
+                     seed=Pairs(list(st.diag.S), list(st.diag.Y)),
+                     exact_gradient=task.exact_gradient, checked=checked)
+    task.counters.mono_fallbacks += out.iterations
     return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs, out.ray),
-            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+            st.carried())
 
 
 def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
@@ -454,8 +516,8 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
         return kkt_abs(zz, GG) <= tol
 
     with np.errstate(over="ignore", invalid="ignore"):
-        out, inner_state = _solve_sub(L, lows, z, Gl, stop, opts.warm_max_iter, opts, counters,
-                                      None)
+        out, inner_state = _solve_sub(_Task(L, stop, opts.warm_max_iter, opts, counters),
+                                      lows, z, Gl, None)
     counters.inner_iterations += out.iterations
     if out.reason == "unbounded" or not (np.all(np.isfinite(out.z))
                                          and np.all(np.isfinite(out.G))):
@@ -496,15 +558,14 @@ def forcing_term(rate: Optional[float], opts: BiOptions) -> float:
     return float(min(opts.inner_rtol, opts.forcing * rate))
 
 
-def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Callable,
-               cap: int, opts: BiOptions, counters: Counters, inner_state):
+def _solve_sub(sub: _Task, lows: list, z: np.ndarray, G: np.ndarray, inner_state):
     """The paper's PQN subproblem, solved by the next level down (Mono-PQN or Bi-PQN)."""
     if len(lows) == 1:
-        inner = mono_level(B, z, G, stop, cap, opts, counters,
+        inner = mono_level(sub.apply, z, G, sub.stop, sub.max_iter, sub.opts, sub.counters,
                            seed=inner_state if isinstance(inner_state, Pairs) else None,
-                           memory=opts.inner_memory)
+                           memory=sub.opts.inner_memory)
         return inner, inner.pairs
-    return bi_level(B, lows[1:], z, G, stop, cap, opts, counters,
+    return bi_level(sub.apply, lows[1:], z, G, sub.stop, sub.max_iter, sub.opts, sub.counters,
                     state=inner_state if isinstance(inner_state, dict) else None,
                     warm_start=False, adaptive=False)
 
