@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.workflows.check import EMVP_SLACK, W_RTOL, check, default_baseline, format_table
 
 __all__ = ["add_check_parser", "cmd_check"]
@@ -21,8 +21,8 @@ def add_check_parser(sub) -> None:
                     f"{EMVP_SLACK:.0%}.")
     p.add_argument("--set", action="append", default=None, metavar="NAME",
                    help="shipped set name or .h5 path, repeatable (default: every shipped set)")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable (default: every MVP-only solver)")
+    add_spec_option(p, "solver", many=True,
+                    help="solver spec, repeatable (default: every MVP-only solver)")
     add_stop_options(p, per="run", with_stop=False)
     p.add_argument("--baseline", default=None, metavar="FILE",
                    help="baseline file (default problems/data/baselines.json)")

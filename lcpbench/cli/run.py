@@ -18,7 +18,7 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core import guards
 from lcpbench.core.api import requested_lows
 from lcpbench.core.clock import utc_now
@@ -44,10 +44,10 @@ def add_run_parser(sub) -> None:
                     "rows to DIR/results.csv and render DIR/report.html. Without --solver and "
                     "--problem: every MVP-only and reference solver on the default problem "
                     "set. Re-running into the same DIR resumes.")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable; a value in brackets sweeps: bi-pqn:low=[p3,p4]")
-    p.add_argument("--problem", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="problem spec, repeatable (values in brackets sweep)")
+    add_spec_option(p, "solver", many=True,
+                    help="solver spec, repeatable; a value in brackets sweeps: bi-pqn:low=[p3,p4]")
+    add_spec_option(p, "problem", many=True,
+                    help="problem spec, repeatable (values in brackets sweep)")
     p.add_argument("--config", metavar="SWEEP.toml", help="sweep file (see sweeps/)")
     add_stop_options(p, tol=None, stop=None, max_emvps=None, per="run")
     p.add_argument("--repeat", type=int, default=None, help="runs per (instance, solver)")

@@ -152,14 +152,20 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
-def product_and_step(apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray):
+def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
     """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
 
-    Returns ``(Qp, z_new, G_new, eta)``; ``z_new`` is None when the quadratic is
-    unbounded along ``p``.
+    Returns ``((Qp, z_new, G_new, eta), "", None)``, or None with the reason the
+    level ends there: ``stationary`` (no direction ``p``) or ``unbounded`` with
+    the ray ``(p, Qp)``.
     """
+    if p is None:
+        return None, "stationary", None
     Qp = apply(p)
-    return (Qp, *optimal_step(z, G, p, Qp))
+    z_new, G_new, eta = optimal_step(z, G, p, Qp)
+    if z_new is None:
+        return None, "unbounded", (p, Qp)
+    return (Qp, z_new, G_new, eta), "", None
 
 
 def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.ndarray,
@@ -211,13 +217,11 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
         if it >= max_iter:
             break
         p = pqn_direction(model, z, G, opts, counters)
-        if p is None:
-            reason = "stationary"
+        step, end, ray = _step_along(apply, z, G, p)
+        if step is None:
+            reason = end
             break
-        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
-        if z_new is None:
-            reason, ray = "unbounded", (p, Qp)
-            break
+        Qp, z_new, G_new, eta = step
         it += 1
         if not model.add_pair(eta * p, eta * Qp):
             counters.skipped_pairs += 1
@@ -327,13 +331,11 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
             counters.decisions.append("mono:model" if poor else "mono:subproblem")
             return _as_mono(task, z, G, it, st, checked=True)
         p, Bp, inner_new = _outer_direction(task, st, z, G)
-        if p is None:
-            reason = "stationary"
+        step, end, ray = _step_along(apply, z, G, p)
+        if step is None:
+            reason = end
             break
-        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
-        if z_new is None:
-            reason, ray = "unbounded", (p, Qp)
-            break
+        Qp, z_new, G_new, eta = step
         it += 1
         _update_models(task, st, _Step(p, Bp, Qp, eta), inner_new)
         z, G = z_new, G_new
