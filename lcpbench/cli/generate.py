@@ -13,18 +13,22 @@ from lcpbench.workflows.generate import default_cache_dir, generate, parse_lows
 __all__ = ["add_generate_parser", "cmd_generate"]
 
 
+_GENERATE_DESCRIPTION = """
+Simulate a scene with one solver and write, for each chosen step, the dense
+high-fidelity A (n MVPs), b, the dense low-fidelity matrices with their measured cost ratios,
+the QP consensus reference and provenance to an HDF5 set. Re-running into the same file
+resumes: instances already in it are verified and kept, and the simulation continues
+from the checkpoint FILE-stem.checkpoint.npz written beside the set after every step. A
+failed write (disk full) leaves the set as it was before that instance; the same command
+then resumes.
+"""
+
+
 def add_generate_parser(sub) -> None:
     """Add ``lcpbench generate`` to the subcommands ``sub``."""
     p = sub.add_parser(
         "generate", help="write a dense stored set from a live scene",
-        description="Simulate a scene with one solver and write, for each chosen step, the "
-                    "dense high-fidelity A (n MVPs), b, the dense low-fidelity matrices with "
-                    "their measured cost ratios, the QP consensus reference and provenance to "
-                    "an HDF5 set. Re-running into the same file resumes: instances already "
-                    "in it are verified and kept, and the simulation continues from the "
-                    "checkpoint FILE-stem.checkpoint.npz written beside the set after every "
-                    "step. A failed write (disk full) leaves the set as it was before that "
-                    "instance; the same command then resumes.")
+        description=_GENERATE_DESCRIPTION)
     add_spec_option(p, "scene", many=False, default=EXAMPLE_SCENE,
                     help=f"scene spec (default {EXAMPLE_SCENE})")
     add_spec_option(p, "solver", many=False, default=DEFAULT_SOLVER,

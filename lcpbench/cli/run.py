@@ -37,13 +37,18 @@ __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "buil
 STORE_MARKERS = ("results.csv", "meta.json", "history.csv", ".lock", "checkpoints")
 
 
+_RUN_DESCRIPTION = """
+Run every solver on every problem instance, verify each answer, append rows to
+DIR/results.csv and render DIR/report.html. Without --solver and --problem: every
+MVP-only and reference solver on the default problem set. Re-running into the same DIR
+resumes.
+"""
+
+
 def add_run_parser(sub) -> None:
     p = sub.add_parser(
         "run", help="sweep solvers x problems into a run store, then write the HTML report",
-        description="Run every solver on every problem instance, verify each answer, append "
-                    "rows to DIR/results.csv and render DIR/report.html. Without --solver and "
-                    "--problem: every MVP-only and reference solver on the default problem "
-                    "set. Re-running into the same DIR resumes.")
+        description=_RUN_DESCRIPTION)
     add_spec_option(p, "solver", many=True,
                     help="solver spec, repeatable; a value in brackets sweeps: bi-pqn:low=[p3,p4]")
     add_spec_option(p, "problem", many=True,
@@ -68,12 +73,16 @@ def add_run_parser(sub) -> None:
     p.set_defaults(func=cmd_run)
 
 
+_REPORT_DESCRIPTION = """
+Render DIR/report.html and DIR/tables/ from a run store. The fidelity study of stored
+sets is computed once per set and cached in $XDG_CACHE_HOME/lcpbench (default
+~/.cache/lcpbench), so re-rendering takes seconds.
+"""
+
+
 def add_report_parser(sub) -> None:
     p = sub.add_parser("report", help="render DIR/report.html from a run store",
-                       description="Render DIR/report.html and DIR/tables/ from a run store. "
-                                   "The fidelity study of stored sets is computed once per "
-                                   "set and cached in $XDG_CACHE_HOME/lcpbench (default "
-                                   "~/.cache/lcpbench), so re-rendering takes seconds.")
+                       description=_REPORT_DESCRIPTION)
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--baseline", default=BASELINE_SOLVER,
                    help="solver the offline ratios and online speedups are measured against")

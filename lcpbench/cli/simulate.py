@@ -11,13 +11,17 @@ from lcpbench.core.defaults import EXAMPLE_SCENE, SIMULATE_SOLVER
 __all__ = ["add_simulate_parser", "cmd_simulate"]
 
 
+_SIMULATE_DESCRIPTION = """
+Simulate a scene (e.g. lattice:m=3,model=rpy) once per --solver with forward Euler, one
+LCP per time step, and write a row per step (kind=online) to the run store DIR;
+`lcpbench report DIR` renders the online table.
+"""
+
+
 def add_simulate_parser(sub) -> None:
     """Add ``lcpbench simulate`` to the subcommands ``sub``."""
     p = sub.add_parser("simulate", help="online run: simulate a scene once per solver",
-                       description="Simulate a scene (e.g. lattice:m=3,model=rpy) once per "
-                                   "--solver with forward Euler, one LCP per time step, and "
-                                   "write a row per step (kind=online) to the run store DIR; "
-                                   "`lcpbench report DIR` renders the online table.")
+                       description=_SIMULATE_DESCRIPTION)
     add_spec_option(p, "scene", many=False, default=EXAMPLE_SCENE,
                     help=f"scene spec (default {EXAMPLE_SCENE}; low=[self] adds a "
                          "low-fidelity operator for multi-fidelity solvers)")

@@ -16,12 +16,16 @@ from lcpbench.core.specs import make_params, parse_spec
 __all__ = ["add_solve_parser", "cmd_solve"]
 
 
+_SOLVE_DESCRIPTION = """
+Generate the instances of a problem family and solve each with every --solver; prints
+status, E-MVPs, verified residual and time per run.
+"""
+
+
 def add_solve_parser(sub) -> None:
     """Add ``lcpbench solve`` to the subcommands ``sub``."""
     p = sub.add_parser("solve", help="solve the instances of one problem family with solvers",
-                       description="Generate the instances of a problem family and solve "
-                                   "each with every --solver; prints status, E-MVPs, "
-                                   "verified residual and time per run.")
+                       description=_SOLVE_DESCRIPTION)
     p.add_argument("--problem", default=EXAMPLE_PROBLEM, metavar="NAME[:k=v,...]",
                    help=f"problem family spec (default {EXAMPLE_PROBLEM})")
     p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
