@@ -4,8 +4,8 @@ The method paper's sections "A Proximal Quasi-Newton Method" (the paper's Mono-P
 "Mono-PQN Step Size Selection" (the paper's step-size algorithm), "A Bifidelity Proximal
 Quasi-Newton Method" (the paper's Bi-PQN algorithm) and appendices "Fast Solutions to Weighted
 Proximal Operator" and "Bifidelity Proximal Quasi-Newton". The iteration itself
-lives in :mod:`lcpbench.toolkit.pqn_levels`; this module wires it to the solver
-context and documents every choice.
+lives in :mod:`lcpbench.toolkit.pqn_levels` and :mod:`lcpbench.toolkit.pqn_bilevel`;
+this module wires it to the solver context and documents every choice.
 
 MVPs per iteration
 ------------------
@@ -45,15 +45,8 @@ from lcpbench.core.context import SolverContext
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
-from lcpbench.toolkit.pqn_levels import (
-    BiOptions,
-    Counters,
-    MonoOptions,
-    Pairs,
-    bi_level,
-    low_start,
-    mono_level,
-)
+from lcpbench.toolkit.pqn_bilevel import bi_level, low_start
+from lcpbench.toolkit.pqn_levels import BiOptions, Counters, MonoOptions, Pairs, mono_level
 from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
