@@ -1,5 +1,8 @@
 """Fixtures shared by several test files."""
 
+import importlib.util
+import pathlib
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -17,6 +20,19 @@ def one_blas_thread():
     """
     with threadpool_limits(limits=1, user_api="blas"):
         yield
+
+
+@pytest.fixture
+def benchmark_script():
+    """``load(name)``: the module of ``benchmarks/NAME.py`` (the scripts are not a package)."""
+    def load(name: str):
+        path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load
 
 
 @pytest.fixture
