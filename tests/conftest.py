@@ -23,10 +23,14 @@ def one_blas_thread():
 
 
 @pytest.fixture
-def benchmark_script():
-    """``load(name)``: the module of ``benchmarks/NAME.py`` (the scripts are not a package)."""
+def benchmark_script(monkeypatch):
+    """``load(name)``: the module of ``benchmarks/NAME.py`` (the scripts are not a package;
+    their folder is on ``sys.path`` for the test, as when a script runs)."""
+    folder = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(folder))
+
     def load(name: str):
-        path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        path = folder / f"{name}.py"
         spec = importlib.util.spec_from_file_location(name, path)
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
