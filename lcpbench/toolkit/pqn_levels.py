@@ -40,7 +40,36 @@ __all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counte
 
 @dataclass(frozen=True)
 class MonoOptions(CheckedParams):
-    """Choices of a Mono-PQN level (documented on the solvers' parameters, ``mono-pqn``)."""
+    """Choices of a Mono-PQN level (the parameters of ``mono-pqn``).
+
+    Parameters
+    ----------
+    memory : int
+        Secant pairs kept in the BFGS model ``B = D + U U' - V V'`` (0: all, up
+        to the iteration cap and at most n, the oldest dropped beyond n; the
+        paper uses full memory since it converges in about ten iterations).
+    scaling : str
+        ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
+        authors' code does; ``identity``: ``D = I`` as written in the paper's Mono-PQN algorithm.
+        ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
+    gamma : float
+        Damping of the BB2 scaling (authors' value 0.8).
+    prox_tol : float
+        Tolerance of the semi-smooth Newton root solve of the weighted prox (the
+        paper's proposition on the weighted non-negative prox).
+    prox_max_iter : int
+        Newton iterations before the weighted prox falls back to an accelerated
+        projected gradient solve in the metric (reported as ``prox_fallbacks``).
+    recompute_every : int
+        Recompute ``A x`` exactly (one extra MVP) every this many iterations to
+        bound the drift of the recurrence ``A x+ = A x + eta A p``; 0 never.
+        Default 50: far beyond the paper's ten-odd iterations, so the extra MVP
+        appears only on hard problems.
+    free_pair : bool
+        With a nonzero warm start ``x0``, seed the BFGS memory with the free
+        secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
+        gradient and ``A 0 = 0`` (as the authors' code does).
+    """
 
     memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
     scaling: Literal["bb", "identity"] = "bb"
@@ -53,7 +82,57 @@ class MonoOptions(CheckedParams):
 
 @dataclass(frozen=True)
 class BiOptions(MonoOptions):
-    """Choices of a Bi-PQN level (documented on the solvers' parameters, ``bi-pqn``)."""
+    """Choices of a Bi-PQN level (the parameters of ``bi-pqn`` and ``multi-pqn``); memory,
+    scaling and gamma of :class:`MonoOptions` also set the fallback model.
+
+    Parameters
+    ----------
+    start : str
+        ``low`` (default, the paper's Bi-PQN algorithm): solve the low-fidelity LCP
+        from ``x0`` first, with no high-fidelity product, then take the first
+        high MVP at its answer, which also gives a free secant pair and the
+        first model check. ``high``: the previous start, ``A x0`` first and a
+        first subproblem solved to ``warm_rtol``. Pairs carried in with
+        ``state=`` seed only the Mono-PQN model of fallback steps.
+    inner_rtol : float
+        Largest relative tolerance of a subproblem: it is solved until its
+        residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
+        at ``z = x`` (the outer residual), ``eta = min(inner_rtol, forcing *
+        rate)``, ``rate`` the smaller of the model's measured error and the last
+        ratio of outer residuals (an Eisenstat-Walker forcing term; see
+        ``lcpbench.toolkit.pqn_levels.forcing_term``). An accurate model is so
+        solved to its accuracy, a poor one is not over-solved.
+    forcing : float
+        Safety factor of the forcing term (default 0.5).
+    inner_max_iter : int
+        Inner iteration cap per subproblem.
+    inner_memory : int
+        Low-fidelity pairs carried across subproblems (0: all).
+    warm_rtol : float
+        Relative tolerance of the low-fidelity start (``start=low``: of the
+        low-fidelity LCP's residual at ``x0``; ``start=high``: of the first
+        subproblem). Before the first high product nothing measures the
+        model, so the start cannot follow it; the forcing term takes over at
+        the first outer step, whose tolerance the start's model check sets
+        (a tighter ``warm_rtol`` pays off only for a very accurate low:
+        docs/benchmarks.md, "PQN defaults: the measurements behind them").
+    warm_max_iter : int
+        Iteration cap of the low-fidelity start.
+    model_tol : float
+        The model check: after every high MVP the high gradient is known, and
+        ``||(A - B) p|| / ||A p||`` (``info['model_errors']``) says how well the
+        model predicted it. Above ``model_tol`` the low fidelity is judged
+        useless and the solve finishes as Mono-PQN on the high-fidelity pairs
+        gathered so far (``info['abandoned_low']``; ``info['decisions']`` lists
+        every step's choice), so a useless ``A_low`` costs about its start.
+        Default 0.5: between what the shipped useful lows measure and what
+        useless ones do (docs/benchmarks.md, "PQN defaults: the measurements
+        behind them").
+    max_fallbacks : int
+        After this many consecutive Mono-PQN fallbacks (a subproblem answer
+        that does not descend) the low-fidelity model is abandoned likewise;
+        0 never abandons it on that ground.
+    """
 
     start: Literal["low", "high"] = "low"
     inner_rtol: Annotated[float, Bounds(gt=0, lt=1)] = 0.1
