@@ -42,6 +42,7 @@ import numpy as np
 
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
+from lcpbench.core.registry import LowOperators
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
@@ -229,7 +230,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     return _finish(ctx, out, counters, out.pairs)
 
 
-@register_solver("bi-pqn", BiPQNParams, multifidelity=True)
+@register_solver("bi-pqn", BiPQNParams, multifidelity=LowOperators(one="low"))
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     """Bi-fidelity proximal quasi-Newton method (the method paper's Bi-PQN algorithm).
 
@@ -268,7 +269,7 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     return _run_chain(ctx, p, _low_names(ctx, (p.low,) if p.low else (), "bi-pqn"), "bi-pqn")
 
 
-@register_solver("multi-pqn", MultiPQNParams, multifidelity=True)
+@register_solver("multi-pqn", MultiPQNParams, multifidelity=LowOperators(chain="lows"))
 def multi_pqn(ctx: SolverContext, p: MultiPQNParams) -> SolveResult:
     """Multi-fidelity PQN: Bi-PQN whose subproblems are solved by Bi-PQN on a cheaper operator.
 

@@ -168,7 +168,7 @@ def check_plan(p: Plan, *, force: bool = False) -> None:
                                            matrix_free=not lcp.A.explicit, force=force)
             if refused:
                 raise ValueError(f"{run.problem.label}/{lcp.name}: {refused}")
-        names = requested_lows(run.solver.params)
+        names = requested_lows(run.solver.params, run.solver.name)
         if not names:
             continue
         lcp = p.lcp(run)

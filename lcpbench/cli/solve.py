@@ -62,7 +62,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         sinfo = solvers()[sname]
         sparams = make_params(sname, sinfo.params, sraw)
         for lcp in lcps:
-            missing = [n for n in requested_lows(dataclasses.asdict(sparams)) if n not in lcp.low]
+            missing = [n for n in requested_lows(dataclasses.asdict(sparams), sname)
+                       if n not in lcp.low]
             if lcp.low and missing:
                 raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} on "
                                  f"{lcp.name} (it has: {', '.join(sorted(lcp.low))})")

@@ -19,7 +19,7 @@ from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.guards import dense_refusal
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
-from lcpbench.core.registry import get_solver
+from lcpbench.core.registry import get_solver, solvers
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.core.specs import make_params, parse_spec
@@ -28,15 +28,20 @@ __all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
 
 
-def requested_lows(params: dict) -> list[str]:
-    """Low-fidelity operator names a solver's parameters ask for (``low`` and ``lows``).
+def requested_lows(params: dict, solver: Optional[str] = None) -> list[str]:
+    """Low-fidelity operator names a solver's parameter values ask for.
 
-    An empty ``low`` (the only low operator) asks for no name in particular.
+    The registry says which parameters name low operators
+    (:class:`~lcpbench.core.registry.LowOperators`, declared with
+    ``register_solver(..., multifidelity=...)``). Without ``solver``, the parameters
+    every registered solver declares are read. An empty single name (the only low
+    operator) asks for no name in particular.
     """
-    names = [params["low"]] if isinstance(params.get("low"), str) and params["low"] else []
-    lows = params.get("lows")
-    if isinstance(lows, (list, tuple)):
-        names += [str(x) for x in lows]
+    if solver is not None:
+        return get_solver(solver).lows.requested(params)
+    names: list[str] = []
+    for declared in {info.lows for info in solvers().values()}:
+        names += [n for n in declared.requested(params) if n not in names]
     return names
 
 
