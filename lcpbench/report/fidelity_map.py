@@ -21,6 +21,7 @@ import pandas as pd
 from lcpbench.core.registry import solvers
 from lcpbench.report import plots, tables
 from lcpbench.report.colors import solver_colors
+from lcpbench.report.markup import html_table
 
 __all__ = ["fidelity_map_table", "fidelity_map_section"]
 
@@ -107,8 +108,7 @@ def fidelity_map_section(results: pd.DataFrame, *, colors: dict | None = None
     table = fidelity_map_table(results)
     if table.empty:
         return "", table
-    body = table.to_html(index=False, escape=True, na_rep="-", border=0,
-                         float_format=lambda v: f"{v:.3g}")
+    body = html_table(table)
     parts = ["<h2 id='fidelity-map'>Fidelity advantage</h2>"
              "<p class='note'>Median high-fidelity MVPs and E-MVPs "
              "of the multi-fidelity solvers (verified-solved runs) against the relative error "
