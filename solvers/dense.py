@@ -27,8 +27,7 @@ Threads
 Both run with BLAS on one thread (:func:`lcpbench.toolkit.blas.on_one_blas_thread`):
 their products are single rows (pgs) or rank-one updates and small solves
 (lemke), where a threaded BLAS only adds start-up and, on a loaded machine,
-contention (lemke at n = 106 took a median 850 ms on a busy 2-core machine
-against 16 ms on one thread).
+contention (docs/benchmarks.md, "One BLAS thread: the measurements behind it").
 """
 
 from __future__ import annotations
