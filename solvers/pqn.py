@@ -73,8 +73,7 @@ class BiPQNParams(BiOptions):
 
 @dataclass(frozen=True)
 class MultiPQNParams(BiPQNParams):
-    """Parameters of multi-pqn (the others documented on
-    :class:`~lcpbench.toolkit.pqn_levels.BiOptions`).
+    """Parameters of multi-pqn: ``lows`` names the chain (the others as for bi-pqn).
 
     Parameters
     ----------
