@@ -50,11 +50,11 @@ from collections import Counter  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 
 import numpy as np  # noqa: E402
+from common import print_outcomes, solver_names  # noqa: E402
 from scipy.sparse.linalg import LinearOperator, cg, gmres  # noqa: E402
 
 import lcpbench  # noqa: E402
 from lcpbench.core.operator import apply_uncounted  # noqa: E402
-from lcpbench.core.registry import solvers  # noqa: E402
 from lcpbench.problems.synthetic import random_spd_matrix  # noqa: E402
 
 GROUPS = {"accuracy": ("float32", "mixed", "gmres", "cg-float32"),
@@ -65,7 +65,7 @@ MULTI = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}
 
 def mvp_solvers() -> list[str]:
     """Every listed MVP-only solver (not the references)."""
-    return sorted(n for n, s in solvers().items() if s.listed and s.mvp_only and not s.reference)
+    return solver_names(mvp_only=True)
 
 
 def _matrix(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -250,21 +250,14 @@ def main() -> int:
 
 def report(args, counts: Counter, problems: list[str]) -> int:
     """Print the table; 1 if any claim was false or a run crashed."""
-    print(f"group {args.group}, cases {args.start}..{args.start + args.cases - 1} (seed "
-          f"{args.seed}), tol 1e-8, paper's stop rule, budget {args.max_emvps:g} E-MVPs and "
-          f"{args.max_seconds:g} s per solve\n")
+    head = (f"group {args.group}, cases {args.start}..{args.start + args.cases - 1} (seed "
+            f"{args.seed}), tol 1e-8, paper's stop rule, budget {args.max_emvps:g} E-MVPs and "
+            f"{args.max_seconds:g} s per solve")
     outcomes = ("converged", "refuted", "infeasible", "false-infeasible", "other", "crash")
-    print("| solver | " + " | ".join(outcomes) + " |")
-    print("|---" * (len(outcomes) + 1) + "|")
     names = [n for n in mvp_solvers() if any(counts[(n, o)] for o in outcomes)]
-    for n in names:
-        print("| " + " | ".join([n] + [str(counts[(n, o)]) for o in outcomes]) + " |")
-    total = {o: sum(counts[(n, o)] for n in names) for o in outcomes}
-    print(f"\nruns: {sum(total.values())}, refuted converged: {total['refuted']}, "
-          f"false infeasible: {total['false-infeasible']}, crashes: {total['crash']}")
-    for p in problems[:20]:
-        print(p, file=sys.stderr)
-    return 1 if total["refuted"] or total["false-infeasible"] or total["crash"] else 0
+    return print_outcomes(head, counts, names, {o: o for o in outcomes}, problems=problems,
+                          bad={"refuted": "refuted converged",
+                               "false-infeasible": "false infeasible", "crash": "crashes"})
 
 
 if __name__ == "__main__":

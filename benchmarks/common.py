@@ -60,6 +60,25 @@ def print_markdown_table(names, sets, cell, label=lambda s: s) -> None:
         print(f"| {label(s)} | " + " | ".join(cell(s, lab) for lab in sets) + " |")
 
 
+def print_outcomes(head: str, counts, names, columns: dict, *, bad: dict, problems: list) -> int:
+    """Print a claims benchmark's table and verdict; 1 if any ``bad`` outcome occurred.
+
+    ``counts[(solver, outcome)]`` are run counts; ``columns`` maps each outcome to its
+    column header and ``bad`` the outcomes that are faults to their label in the totals
+    line. The first 20 ``problems`` go to stderr.
+    """
+    print(head + "\n")
+    outcome_of = {h: o for o, h in columns.items()}
+    print_markdown_table(names, list(columns.values()),
+                         lambda n, h: str(counts[(n, outcome_of[h])]))
+    total = {o: sum(counts[(n, o)] for n in names) for o in columns}
+    print(f"\nruns: {sum(total.values())}, "
+          + ", ".join(f"{label}: {total[o]}" for o, label in bad.items()))
+    for p in problems[:20]:
+        print(p, file=sys.stderr)
+    return 1 if any(total[o] for o in bad) else 0
+
+
 def packed_lattice(m: int, steps: int = 40, scene: str = "lattice"):
     """The lattice scene of side ``m`` after ``steps`` cheap RPY steps: packed, with the
     closest gaps at the scene's kept separation (0.1a for ``lattice``, as the shipped sets'

@@ -61,9 +61,9 @@ from multiprocessing import Pool  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
+from common import print_outcomes, solver_names  # noqa: E402
 
 import lcpbench  # noqa: E402
-from lcpbench.core.registry import solvers  # noqa: E402
 from lcpbench.problems.hard import planted_b, random_spd_matrix  # noqa: E402
 from lcpbench.problems.inexact import inexact_inverse, stiffness  # noqa: E402
 from lcpbench.problems.infeasible import infeasible_lcp, unbounded_lcp  # noqa: E402
@@ -181,8 +181,7 @@ def make_case(i: int, seed: int = 0, family: str = "classic") -> lcpbench.LCP:
 
 
 def mvp_solvers() -> list[str]:
-    return sorted(n for n, s in solvers().items()
-                  if s.listed and s.mvp_only and not s.reference)
+    return solver_names(mvp_only=True)
 
 
 def classify(res: lcpbench.SolveResult, solvable: bool) -> str:
@@ -293,19 +292,12 @@ OUTCOMES = ("solved", "honest", "infeasible", "false", "false-infeasible", "cras
 
 def report(head: str, counts: Counter, problems: list[str]) -> int:
     """Print the table; 1 if any run was a false claim or a crash."""
-    names = sorted({n for n, _ in counts})
-    print(head + "\n")
-    print("| solver | solved | honest failure | infeasible (found) | false converged | "
-          "false infeasible | crash |")
-    print("|---|---|---|---|---|---|---|")
-    for n in names:
-        print("| " + " | ".join([n] + [str(counts[(n, o)]) for o in OUTCOMES]) + " |")
-    total = {o: sum(v for (n, oo), v in counts.items() if oo == o) for o in OUTCOMES}
-    print(f"\nruns: {sum(counts.values())}, false converged: {total['false']}, false infeasible: "
-          f"{total['false-infeasible']}, crashes: {total['crash']}")
-    for p in problems[:20]:
-        print(p, file=sys.stderr)
-    return 1 if total["false"] or total["false-infeasible"] or total["crash"] else 0
+    columns = dict(zip(OUTCOMES, ("solved", "honest failure", "infeasible (found)",
+                                  "false converged", "false infeasible", "crash")))
+    return print_outcomes(head, counts, sorted({n for n, _ in counts}), columns,
+                          problems=problems, bad={"false": "false converged",
+                                                  "false-infeasible": "false infeasible",
+                                                  "crash": "crashes"})
 
 
 if __name__ == "__main__":

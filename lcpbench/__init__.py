@@ -14,7 +14,7 @@ from .core.context import Budget, Monitor, SolverContext, StopSolver
 from .core.lcp import LCP
 from .core.operator import BudgetExhausted, Operator
 from .core.reference import Reference, reference
-from .core.registry import get_problem, get_solver, register_problem, register_solver
+from .core.registry import LowOperators, get_problem, get_solver, register_problem, register_solver
 from .core.registry import problems as list_problems
 from .core.registry import solvers as list_solvers
 from .core.residuals import StopRule
@@ -27,6 +27,6 @@ __version__ = "0.1.0"
 __all__ = [
     "LCP", "Operator", "Budget", "Monitor", "SolverContext", "StopSolver", "BudgetExhausted",
     "StopRule", "SolveResult", "Status", "solve", "run_solver", "DEFAULT_SOLVER", "reference",
-    "Reference", "register_solver", "register_problem", "get_solver", "get_problem",
+    "Reference", "LowOperators", "register_solver", "register_problem", "get_solver", "get_problem",
     "list_problems", "list_solvers", "parse_spec", "SecantMemory", "__version__",
 ]

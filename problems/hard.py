@@ -43,6 +43,8 @@ from lcpbench.core.specs import Bounds, CheckedParams
 from .synthetic import (
     Cond,
     Count,
+    InstanceSize,
+    MatrixCond,
     NonNegative,
     SeededParams,
     Size,
@@ -119,14 +121,12 @@ class SpdCondParams(SeededParams):
     count : int
         Number of instances; their condition numbers are log-spaced from
         ``cond_min`` to ``cond_max`` (default 10).
-    n : int
-        Size of every instance (default 50).
     cond_min, cond_max : float
         Range of condition numbers (defaults 1e1 and 1e10).
     """
 
     count: Count = 10
-    n: Size = 50
+    n: InstanceSize = 50
     cond_min: Cond = 1e1
     cond_max: Cond = 1e10
 
@@ -339,18 +339,14 @@ class AllInactiveParams(SeededParams):
 
     Parameters
     ----------
-    n : int
-        Size (default 30).
-    cond : float
-        Condition number of A (default 100).
     zero_fraction : float
         Fraction of entries of b set exactly to 0 (degenerate: x_i = w_i = 0;
         default 0.1).
     """
 
     count: Count = 3
-    n: Size = 30
-    cond: Cond = 100.0
+    n: InstanceSize = 30
+    cond: MatrixCond = 100.0
     zero_fraction: Annotated[float, Bounds(ge=0, le=1)] = 0.1
 
 
@@ -382,16 +378,14 @@ class BadScaleParams(SeededParams):
     Parameters
     ----------
     n : int
-        Size (default 40; at least 2, for the two extreme magnitudes).
-    cond : float
-        Condition number of A (default 100).
+        Size (at least 2, for the two extreme magnitudes).
     log_min, log_max : float
         log10 range of the magnitudes of b (defaults -12 and 6).
     """
 
     count: Count = 3
     n: Annotated[int, Bounds(ge=2)] = 40
-    cond: Cond = 100.0
+    cond: MatrixCond = 100.0
     log_min: Annotated[float, Bounds()] = -12.0
     log_max: Annotated[float, Bounds()] = 6.0
 

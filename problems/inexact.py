@@ -23,7 +23,7 @@ from scipy.sparse.linalg import LinearOperator, cg, spsolve
 from lcpbench import LCP, Operator, register_problem
 from lcpbench.core.guards import Estimate
 from lcpbench.core.specs import Bounds
-from lcpbench.problems.synthetic import Count, SeededParams, Size, seeded
+from lcpbench.problems.synthetic import Count, InstanceSize, SeededParams, seeded
 
 __all__ = ["InexactInverse", "exact_product", "inexact_inverse", "inexact_lcp", "stiffness"]
 
@@ -117,8 +117,6 @@ class InexactParams(SeededParams):
 
     Parameters
     ----------
-    n : int
-        Size of every instance (default 60).
     rtol : float
         Relative tolerance of every inner CG solve, the operator's declared
         accuracy (default 1e-6, the GMRES tolerance of the live backend's
@@ -126,7 +124,7 @@ class InexactParams(SeededParams):
     """
 
     count: Count = 4
-    n: Size = 60
+    n: InstanceSize = 60
     rtol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-6
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from lcpbench import LCP, register_problem
 from lcpbench.core.guards import dense_family
-from lcpbench.core.specs import Bounds
+from lcpbench.core.specs import Bounds, Doc
 from lcpbench.problems.synthetic import Count, SeededParams, check_flops, seeded
 
 __all__ = ["infeasible_lcp", "unbounded_lcp"]
@@ -78,16 +78,10 @@ def unbounded_lcp(rng: np.random.Generator, n: int, *, name: str = "unbounded") 
 
 @dataclass(frozen=True)
 class InfeasibleParams(SeededParams):
-    """Parameters of infeasible and unbounded.
-
-    Parameters
-    ----------
-    n : int
-        Size of every instance (default 5).
-    """
+    """Parameters of infeasible and unbounded."""
 
     count: Count = 4
-    n: Annotated[int, Bounds(ge=2)] = 5
+    n: Annotated[int, Bounds(ge=2), Doc("Size of every instance.")] = 5
 
 
 def _estimate(p: InfeasibleParams):

@@ -23,6 +23,7 @@ from lcpbench.core.specs import Bounds
 from .synthetic import (
     Cond,
     Count,
+    InstanceSize,
     SeededParams,
     Size,
     meta,
@@ -91,8 +92,6 @@ class BifidelityParams(SeededParams):
 
     Parameters
     ----------
-    n : int
-        Size of every instance (default 150).
     cond : float
         Condition number of the high-fidelity A (default 50).
     rel_error : float
@@ -110,7 +109,7 @@ class BifidelityParams(SeededParams):
     """
 
     count: Count = 3
-    n: Size = 150
+    n: InstanceSize = 150
     cond: Cond = 50.0
     rel_error: Annotated[float, Bounds(ge=0)] = 1e-3
     indefinite: bool = False

@@ -342,10 +342,12 @@ def read_siconos_lcp(path: PathLike, *, symmetrize_rtol: float = 0.0,
     ----------
     path : str or Path
         The ``.dat`` file.
-    symmetrize_rtol, psd_check
-        The symmetry policy shared with the FCLIB reader
-        (:func:`lcpbench.problems.formats.symmetric_lcp`); here ``symmetrize_rtol``
-        defaults to 0, so a non-symmetric matrix raises (module docstring).
+    symmetrize_rtol : float
+        Largest relative asymmetry of ``M`` replaced by ``(M + M') / 2`` with a warning;
+        default 0, so a non-symmetric matrix raises (module docstring).
+    psd_check : bool
+        Refuse a matrix that is not positive semidefinite. Both follow the policy of
+        :func:`lcpbench.problems.formats.symmetric_lcp`, shared with the FCLIB reader.
 
     Returns
     -------

@@ -18,9 +18,10 @@ import numpy as np
 from lcpbench import LCP
 from lcpbench.core.guards import Estimate, dense_family
 from lcpbench.core.lcp import PSD_CHECK_MAX_N
-from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.core.specs import Bounds, CheckedParams, Doc
 
-__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "SeededParams", "seeded",
+__all__ = ["Count", "Seed", "Size", "NonNegative", "Cond", "InstanceSize", "MatrixCond",
+           "SeededParams", "seeded",
            "random_spd_matrix",
            "planted_b", "planted_pair", "reference", "meta", "spd_flops", "check_flops",
            "spd_estimate"]
@@ -35,6 +36,10 @@ Size = Annotated[int, Bounds(ge=1)]
 NonNegative = Annotated[int, Bounds(ge=0)]
 #: A condition number.
 Cond = Annotated[float, Bounds(ge=1)]
+#: The size ``n`` of every instance of a family (documented here, once).
+InstanceSize = Annotated[int, Bounds(ge=1), Doc("Size of every instance.")]
+#: The condition number of a family's A (documented here, once).
+MatrixCond = Annotated[float, Bounds(ge=1), Doc("Condition number of A.")]
 
 
 

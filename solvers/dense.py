@@ -27,8 +27,7 @@ Threads
 Both run with BLAS on one thread (:func:`lcpbench.toolkit.blas.on_one_blas_thread`):
 their products are single rows (pgs) or rank-one updates and small solves
 (lemke), where a threaded BLAS only adds start-up and, on a loaded machine,
-contention (lemke at n = 106 took a median 850 ms on a busy 2-core machine
-against 16 ms on one thread).
+contention (docs/benchmarks.md, "One BLAS thread: the measurements behind it").
 """
 
 from __future__ import annotations
@@ -172,6 +171,107 @@ def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: i
         ctx.offer_direction(dz, ctx.dense @ dz)
 
 
+class _Tableau:
+    """Lemke's tableau ``w - M z - e z0 = q`` on scaled data, with its basis and basis inverse.
+
+    Columns: ``0..n-1`` are ``w_i`` (``e_i``), ``n..2n-1`` are ``z_j`` (``-M[:, j]``),
+    ``2n`` is ``z0`` (``-e``). The start has every ``w`` basic.
+    """
+
+    def __init__(self, M: np.ndarray, q: np.ndarray) -> None:
+        self.M, self.q, self.n = M, q, q.shape[0]
+        self.basis = np.arange(self.n)
+        self.Binv = np.eye(self.n)
+        self.rhs = q.astype(np.float64).copy()
+
+    def column(self, k: int) -> np.ndarray:
+        n = self.n
+        if k < n:
+            e = np.zeros(n)
+            e[k] = 1.0
+            return e
+        if k < 2 * n:
+            return -self.M[:, k - n]
+        return -np.ones(n)
+
+    def basis_matrix(self) -> np.ndarray:
+        return np.column_stack([self.column(int(k)) for k in self.basis])
+
+    def pivot(self, row: int, entering: int, d: np.ndarray) -> int:
+        """One elementary pivot on ``(row, entering)``, ``d = Binv col``; returns the leaving column."""
+        piv = d[row]
+        self.Binv[row] /= piv
+        self.rhs[row] /= piv
+        other = np.arange(self.n) != row
+        self.Binv[other] -= np.outer(d[other], self.Binv[row])
+        self.rhs[other] -= d[other] * self.rhs[row]
+        leaving = int(self.basis[row])
+        self.basis[row] = entering
+        return leaving
+
+    def refactor(self, ctx: SolverContext) -> None:
+        """Recompute the basis inverse, or keep the product form if the basis is singular."""
+        try:
+            self.Binv = np.linalg.inv(self.basis_matrix())
+            self.rhs = np.maximum(self.Binv @ self.q, 0.0)   # basic variables are >= 0
+        except np.linalg.LinAlgError:
+            # a numerically singular basis: keep the product-form inverse (it carries on
+            # exactly where the refactorisation would have been) and record it
+            ctx.info["singular_refactors"] = ctx.info.get("singular_refactors", 0) + 1
+
+    def solution(self, ctx: SolverContext) -> np.ndarray:
+        """``x`` from the final basis by a direct solve (accurate, no drift)."""
+        Bmat = self.basis_matrix()
+        try:
+            sol = np.linalg.solve(Bmat, self.q)
+        except np.linalg.LinAlgError:
+            ctx.info["final_basis"] = "singular: least-squares solve"
+            sol = np.linalg.lstsq(Bmat, self.q, rcond=None)[0]
+        if not np.all(np.isfinite(sol)):
+            sol = self.rhs
+        n = self.n
+        x = np.zeros(n)
+        for k, v in zip(self.basis, sol):
+            if n <= k < 2 * n:
+                x[k - n] = max(float(v), 0.0)
+        return x
+
+
+def _lemke_pivots(ctx: SolverContext, p: LemkeParams, tab: _Tableau):
+    """Scheme I's pivots until ``z0`` leaves; ``(status or None, message, pivots)``."""
+    n = tab.n
+    max_piv = p.max_pivots or max(100, 50 * n)
+    # z0 enters; the most negative q_i leaves (lexicographic ties resolved by index).
+    r = int(np.argmin(tab.q))
+    entering = 2 * n
+    pivots = 0
+    while True:
+        col = tab.column(entering)
+        d = tab.Binv @ col
+        if pivots == 0:
+            row = r                          # first pivot: makes rhs >= 0
+        else:
+            row = _lex_min_ratio(tab.rhs, tab.Binv, d, col, p.pivot_tol)
+            if row is None:
+                _offer_ray(ctx, tab.basis, d, entering)    # the framework confirms the claim
+                return Status.infeasible, (
+                    f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
+                    "the LCP is infeasible)"), pivots
+        if d[row] == 0.0:
+            return Status.failed, "Lemke: zero pivot", pivots
+        leaving = tab.pivot(row, entering, d)
+        pivots += 1
+        if pivots == 1:
+            tab.rhs = np.maximum(tab.rhs, 0.0)
+        if leaving == 2 * n:
+            return None, "", pivots             # z0 left: complementary basis found
+        if pivots >= max_piv:
+            return Status.max_iter, f"Lemke: pivot limit {max_piv} reached", pivots
+        entering = leaving + n if leaving < n else leaving - n
+        if pivots % p.refactor_every == 0:
+            tab.refactor(ctx)
+
+
 @register_solver("lemke", LemkeParams, needs_dense=True)
 @on_one_blas_thread
 def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
@@ -201,86 +301,14 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
         w = ctx.A @ x + b                # free: A 0 = 0
         ctx.report(x, w)
         return ctx.finish(x, w, Status.converged, "b >= 0: x = 0 solves the LCP")
-    max_piv = p.max_pivots or max(100, 50 * n)
     # Work on (A/s, b/s), s = max|A_ij|: same solution x, and the tableau's
     # columns (identity, -A/s, -e) are all of order 1, so one pivot tolerance fits.
     s = float(np.max(np.abs(M)))
     s = s if s > 0 else 1.0
-    M = M / s
-    bs = b / s
-    # Columns: 0..n-1 -> w_i (e_i), n..2n-1 -> z_j (-A[:, j]), 2n -> z0 (-e).
-    def column(k: int) -> np.ndarray:
-        if k < n:
-            e = np.zeros(n)
-            e[k] = 1.0
-            return e
-        if k < 2 * n:
-            return -M[:, k - n]
-        return -np.ones(n)
-
-    basis = np.arange(n)               # w basic
-    Binv = np.eye(n)
-    rhs = bs.astype(np.float64).copy()
-    # z0 enters; the most negative b_i leaves (lexicographic ties resolved by index).
-    r = int(np.argmin(bs))
-    entering = 2 * n
-    status, message = None, ""
-    pivots = 0
-    while True:
-        col = column(entering)
-        d = Binv @ col
-        if pivots == 0:
-            row = r                          # first pivot: makes rhs >= 0
-        else:
-            row = _lex_min_ratio(rhs, Binv, d, col, p.pivot_tol)
-            if row is None:
-                _offer_ray(ctx, basis, d, entering)    # the framework confirms the claim
-                status, message = Status.infeasible, (
-                    f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
-                    "the LCP is infeasible)")
-                break
-        piv = d[row]
-        if piv == 0.0:
-            status, message = Status.failed, "Lemke: zero pivot"
-            break
-        # Elementary pivot on (row, entering).
-        Binv[row] /= piv
-        rhs[row] /= piv
-        other = np.arange(n) != row
-        Binv[other] -= np.outer(d[other], Binv[row])
-        rhs[other] -= d[other] * rhs[row]
-        leaving = int(basis[row])
-        basis[row] = entering
-        pivots += 1
-        rhs = np.maximum(rhs, 0.0) if pivots == 1 else rhs
-        if leaving == 2 * n:
-            break                              # z0 left: complementary basis found
-        if pivots >= max_piv:
-            status, message = Status.max_iter, f"Lemke: pivot limit {max_piv} reached"
-            break
-        entering = leaving + n if leaving < n else leaving - n
-        if pivots % p.refactor_every == 0:
-            try:
-                Binv = np.linalg.inv(np.column_stack([column(int(k)) for k in basis]))
-                rhs = np.maximum(Binv @ bs, 0.0)   # basic variables are >= 0
-            except np.linalg.LinAlgError:
-                # a numerically singular basis: keep the product-form inverse (it carries on
-                # exactly where the refactorisation would have been) and record it
-                ctx.info["singular_refactors"] = ctx.info.get("singular_refactors", 0) + 1
+    tab = _Tableau(M / s, b / s)
+    status, message, pivots = _lemke_pivots(ctx, p, tab)
     ctx.info["pivots"] = pivots
-    # Recover z from the final basis by a direct solve (accurate, no drift).
-    Bmat = np.column_stack([column(int(k)) for k in basis])
-    try:
-        sol = np.linalg.solve(Bmat, bs)
-    except np.linalg.LinAlgError:
-        ctx.info["final_basis"] = "singular: least-squares solve"
-        sol = np.linalg.lstsq(Bmat, bs, rcond=None)[0]
-    if not np.all(np.isfinite(sol)):
-        sol = rhs
-    x = np.zeros(n)
-    for k, v in zip(basis, sol):
-        if n <= k < 2 * n:
-            x[k - n] = max(float(v), 0.0)
+    x = tab.solution(ctx)
     w = ctx.A @ x + b
     if ctx.report(x, w) and status is None:
         return ctx.finish(x, w)

@@ -301,7 +301,7 @@ def _newton_direction(ctx: SolverContext, p: MinMapParams, x, w, H, S, F, counte
     return dx, Ay - u
 
 
-def _line_search(ctx: SolverContext, p: MinMapParams, x, w, d, Ad, f0: float, gd: float,
+def _line_search(ctx: SolverContext, p: MinMapParams, x, w, d, Ad, f0: float, gd: float, *,
                  project: bool = True):
     """Armijo backtracking on ``1/2||min(x,w)||^2``; ``(x, w, exact)`` or None.
 

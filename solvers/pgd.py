@@ -71,13 +71,12 @@ class BBPGDParams(CheckedParams):
         maximum of the last ``memory`` objective values (Grippo, Lampariello &
         Lucidi 1986; SPG of Birgin, Martinez & Raydan 2000).
     memory : int
-        ``L`` of the adaptive reference or ``M`` of GLL (default 3). Measured on
-        the hard cases (tol 1e-8, budget 20000): with ``adaptive`` and 3 the
-        safeguarded method solved all seven ``bb-cycle`` instances within 154
-        E-MVPs and needed no more E-MVPs than plain BB on ``spd-cond`` up to cond
-        1e6; GLL with the customary ``M = 10`` cut the BB steps so often that
-        cond 1e6 and 1e7 ran out of budget (docs/benchmarks.md). Only with
-        ``safeguard=true``.
+        ``L`` of the adaptive reference or ``M`` of GLL (default 3). With
+        ``adaptive`` and 3 the safeguarded method solves every ``bb-cycle``
+        instance at about plain BB's cost elsewhere; GLL with the customary
+        ``M = 10`` cuts the BB steps so often that ill-conditioned cases run out
+        of budget (docs/benchmarks.md, "BB-PGD's safeguards", has the numbers).
+        Only with ``safeguard=true``.
     armijo : float
         Sufficient-decrease constant ``gamma`` in ``f(x + d) <= f_max + gamma
         w'd`` (default 1e-4; must be in (0, 1/2] so that the exact line

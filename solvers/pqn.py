@@ -4,8 +4,8 @@ The method paper's sections "A Proximal Quasi-Newton Method" (the paper's Mono-P
 "Mono-PQN Step Size Selection" (the paper's step-size algorithm), "A Bifidelity Proximal
 Quasi-Newton Method" (the paper's Bi-PQN algorithm) and appendices "Fast Solutions to Weighted
 Proximal Operator" and "Bifidelity Proximal Quasi-Newton". The iteration itself
-lives in :mod:`lcpbench.toolkit.pqn_levels`; this module wires it to the solver
-context and documents every choice.
+lives in :mod:`lcpbench.toolkit.pqn_levels` and :mod:`lcpbench.toolkit.pqn_bilevel`;
+this module wires it to the solver context and documents every choice.
 
 MVPs per iteration
 ------------------
@@ -42,131 +42,43 @@ import numpy as np
 
 from lcpbench import register_solver
 from lcpbench.core.context import SolverContext
+from lcpbench.core.registry import LowOperators
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
-from lcpbench.toolkit.pqn_levels import (
-    BiOptions,
-    Counters,
-    MonoOptions,
-    Pairs,
-    bi_level,
-    low_start,
-    mono_level,
-)
+from lcpbench.toolkit.pqn_bilevel import bi_level, low_start
+from lcpbench.toolkit.pqn_levels import BiOptions, Counters, MonoOptions, Pairs, mono_level
 from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
 
-_MONO_DOC = """
-    memory : int
-        Secant pairs kept in the BFGS model ``B = D + U U' - V V'`` (0: all, up
-        to the iteration cap and at most n, the oldest dropped beyond n; the
-        paper uses full memory since it converges in about ten iterations).
-    scaling : str
-        ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
-        authors' code does; ``identity``: ``D = I`` as written in the paper's Mono-PQN algorithm.
-        ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
-    gamma : float
-        Damping of the BB2 scaling (authors' value 0.8).
-    prox_tol : float
-        Tolerance of the semi-smooth Newton root solve of the weighted prox (the
-        paper's proposition on the weighted non-negative prox).
-    prox_max_iter : int
-        Newton iterations before the weighted prox falls back to an accelerated
-        projected gradient solve in the metric (reported as ``prox_fallbacks``).
-    recompute_every : int
-        Recompute ``A x`` exactly (one extra MVP) every this many iterations to
-        bound the drift of the recurrence ``A x+ = A x + eta A p``; 0 never.
-        Default 50: far beyond the paper's ten-odd iterations, so the extra MVP
-        appears only on hard problems.
-    free_pair : bool
-        With a nonzero warm start ``x0``, seed the BFGS memory with the free
-        secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
-        gradient and ``A 0 = 0`` (as the authors' code does)."""
-
-_INNER_DOC = """
-    start : str
-        ``low`` (default, the paper's Bi-PQN algorithm): solve the low-fidelity LCP
-        from ``x0`` first, with no high-fidelity product, then take the first
-        high MVP at its answer, which also gives a free secant pair and the
-        first model check. ``high``: the previous start, ``A x0`` first and a
-        first subproblem solved to ``warm_rtol``. Pairs carried in with
-        ``state=`` seed only the Mono-PQN model of fallback steps.
-    inner_rtol : float
-        Largest relative tolerance of a subproblem: it is solved until its
-        residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
-        at ``z = x`` (the outer residual), ``eta = min(inner_rtol, forcing *
-        rate)``, ``rate`` the smaller of the model's measured error and the last
-        ratio of outer residuals (an Eisenstat-Walker forcing term; see
-        ``lcpbench.toolkit.pqn_levels.forcing_term``). An accurate model is so
-        solved to its accuracy, a poor one is not over-solved.
-    forcing : float
-        Safety factor of the forcing term (default 0.5).
-    inner_max_iter : int
-        Inner iteration cap per subproblem.
-    inner_memory : int
-        Low-fidelity pairs carried across subproblems (0: all).
-    warm_rtol : float
-        Relative tolerance of the low-fidelity start (``start=low``: of the
-        low-fidelity LCP's residual at ``x0``; ``start=high``: of the first
-        subproblem). Before the first high product nothing measures the
-        model, so the start cannot follow it; the forcing term takes over at
-        the first outer step, whose tolerance the start's model check sets
-        (``warm_rtol=1e-5`` saves a high MVP with a low accurate to 1e-4 and
-        costs the real BIM lows low products: docs/benchmarks.md).
-    warm_max_iter : int
-        Iteration cap of the low-fidelity start.
-    model_tol : float
-        The model check: after every high MVP the high gradient is known, and
-        ``||(A - B) p|| / ||A p||`` (``info['model_errors']``) says how well the
-        model predicted it. Above ``model_tol`` the low fidelity is judged
-        useless and the solve finishes as Mono-PQN on the high-fidelity pairs
-        gathered so far (``info['abandoned_low']``; ``info['decisions']`` lists
-        every step's choice), so a useless ``A_low`` costs about its start.
-        Default 0.5: the real p = 3 and p = 4 BIM lows measure 0.1-0.6, a 50%
-        random error 0.7-0.85, RPY 1.5.
-    max_fallbacks : int
-        After this many consecutive Mono-PQN fallbacks (a subproblem answer
-        that does not descend) the low-fidelity model is abandoned likewise;
-        0 never abandons it on that ground."""
-
-
 @dataclass(frozen=True)
 class MonoPQNParams(MonoOptions):
-    pass
-
-
-MonoPQNParams.__doc__ = "Parameters of mono-pqn.\n\n    Parameters\n    ----------" + _MONO_DOC
+    """Parameters of mono-pqn (documented on :class:`~lcpbench.toolkit.pqn_levels.MonoOptions`)."""
 
 
 @dataclass(frozen=True)
 class BiPQNParams(BiOptions):
+    """Parameters of bi-pqn (the others documented on
+    :class:`~lcpbench.toolkit.pqn_levels.BiOptions`).
+
+    Parameters
+    ----------
+    low : str
+        Name of the low-fidelity operator in the LCP's ``low`` (empty: the only one).
+    """
+
     low: str = ""
-
-
-BiPQNParams.__doc__ = ("Parameters of bi-pqn.\n\n    Parameters\n    ----------\n"
-                       "    low : str\n        Name of the low-fidelity operator in the LCP's "
-                       "``low`` (empty: the only one).\n" + _MONO_DOC.strip("\n") + "\n"
-                       "        (memory, scaling and gamma also set the fallback model.)"
-                       + _INNER_DOC)
 
 
 @dataclass(frozen=True)
 class MultiPQNParams(BiPQNParams):
-    lows: tuple[str, ...] = ()
-    start: Literal["low", "high"] = "high"
+    """Parameters of multi-pqn: ``lows`` names the chain (the others as for bi-pqn).
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.low:
-            raise ValueError("multi-pqn takes `lows` (an ordered list), not `low`")
-
-
-MultiPQNParams.__doc__ = BiPQNParams.__doc__.replace("Parameters of bi-pqn.", "Parameters of multi-pqn.") \
-    .replace("    low : str\n        Name of the low-fidelity operator in the LCP's ``low`` (empty: "
-             "the only one).\n",
-             "    low : str\n        Unused (use ``lows``).\n") + """
+    Parameters
+    ----------
+    low : str
+        Unused (use ``lows``).
     lows : list of str
         Low-fidelity operators from the most to the least accurate, e.g.
         ``lows=[p6,p4,p3]`` (empty: every low operator of the LCP, ordered by
@@ -176,10 +88,18 @@ MultiPQNParams.__doc__ = BiPQNParams.__doc__.replace("Parameters of bi-pqn.", "P
     -----
     multi-pqn's ``start`` defaults to ``high``: solving the first low problem
     through the whole chain cost more than it saved on the shipped sets
-    (median E-MVPs with all lows, ``lattice-bim-m3`` 14.1 against 13.0,
-    ``lattice-bim-m4`` 11.3 against 10.5). Levels below the top solve their
-    subproblems to the fixed ``inner_rtol``: the forcing term follows the
-    high-fidelity residual, which only the top level sees."""
+    (docs/benchmarks.md, "PQN defaults: the measurements behind them"). Levels
+    below the top solve their subproblems to the fixed ``inner_rtol``: the
+    forcing term follows the high-fidelity residual, which only the top level sees.
+    """
+
+    lows: tuple[str, ...] = ()
+    start: Literal["low", "high"] = "high"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.low:
+            raise ValueError("multi-pqn takes `lows` (an ordered list), not `low`")
 
 
 def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
@@ -309,7 +229,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     return _finish(ctx, out, counters, out.pairs)
 
 
-@register_solver("bi-pqn", BiPQNParams, multifidelity=True)
+@register_solver("bi-pqn", BiPQNParams, multifidelity=LowOperators(one="low"))
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     """Bi-fidelity proximal quasi-Newton method (the method paper's Bi-PQN algorithm).
 
@@ -348,7 +268,7 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
     return _run_chain(ctx, p, _low_names(ctx, (p.low,) if p.low else (), "bi-pqn"), "bi-pqn")
 
 
-@register_solver("multi-pqn", MultiPQNParams, multifidelity=True)
+@register_solver("multi-pqn", MultiPQNParams, multifidelity=LowOperators(chain="lows"))
 def multi_pqn(ctx: SolverContext, p: MultiPQNParams) -> SolveResult:
     """Multi-fidelity PQN: Bi-PQN whose subproblems are solved by Bi-PQN on a cheaper operator.
 

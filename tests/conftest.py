@@ -1,5 +1,8 @@
 """Fixtures shared by several test files."""
 
+import importlib.util
+import pathlib
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -17,6 +20,23 @@ def one_blas_thread():
     """
     with threadpool_limits(limits=1, user_api="blas"):
         yield
+
+
+@pytest.fixture
+def benchmark_script(monkeypatch):
+    """``load(name)``: the module of ``benchmarks/NAME.py`` (the scripts are not a package;
+    their folder is on ``sys.path`` for the test, as when a script runs)."""
+    folder = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+    monkeypatch.syspath_prepend(str(folder))
+
+    def load(name: str):
+        path = folder / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load
 
 
 @pytest.fixture

@@ -4,26 +4,15 @@ The full runs (2,000 of each group, docs/benchmarks.md) take tens of minutes; th
 takes seconds and covers each generator kind once with two solvers each.
 """
 
-import importlib.util
-import pathlib
-
 import numpy as np
 import pytest
-
-
-def _adversarial():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "adversarial.py"
-    spec = importlib.util.spec_from_file_location("adversarial", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.mark.usefixtures("one_blas_thread")
 @pytest.mark.parametrize("group, solvers", [("accuracy", ("mono-pqn", "bb-pgd")),
                                             ("scaling", ("a-pgd", "mono-pqn"))])
-def test_a_slice_of_the_adversarial_cases(group, solvers):
-    adv = _adversarial()
+def test_a_slice_of_the_adversarial_cases(group, solvers, benchmark_script):
+    adv = benchmark_script("adversarial")
     outcomes = []
     with np.errstate(all="ignore"):
         for i in range(4):                           # one case of each kind
@@ -33,12 +22,12 @@ def test_a_slice_of_the_adversarial_cases(group, solvers):
     assert not bad, bad
 
 
-def test_the_classifier_counts_a_refuted_claim():
+def test_the_classifier_counts_a_refuted_claim(benchmark_script):
     # the script's own residual, not the result's: a 'converged' whose x is wrong is refuted
     import lcpbench
     from lcpbench.core.result import Status
 
-    adv = _adversarial()
+    adv = benchmark_script("adversarial")
     lcp = lcpbench.LCP(np.eye(2), np.array([-1.0, 1.0]))
     res = lcpbench.solve(lcp, solver="mono-pqn")
     assert res.status == Status.converged and adv.classify(res, lcp, True) == "converged"

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import pathlib
-
 import numpy as np
 import pytest
 
@@ -114,18 +111,10 @@ def test_refine_rescues_singular_active_set():
 
 
 # ---------------------------------------------------------------------- bb-cycle
-def _search_module():
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "find_bb_cycles.py"
-    spec = importlib.util.spec_from_file_location("find_bb_cycles", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.mark.parametrize("lcp", generate("bb-cycle"), ids=lambda lcp: lcp.name)
-def test_bb_cycle_defeats_unsafeguarded_bb(lcp):
+def test_bb_cycle_defeats_unsafeguarded_bb(lcp, benchmark_script):
     # The search script's own projected BB1 loop (independent of solvers/pgd.py).
-    search = _search_module()
+    search = benchmark_script("find_bb_cycles")
     with np.errstate(all="ignore"):
         r = search.projected_bb(lcp.dense(), lcp.b, 2000)
     assert not np.min(np.nan_to_num(r[-500:], nan=np.inf)) <= 1e-8

@@ -51,22 +51,24 @@ WRITER = textwrap.dedent("""
     from lcpbench.run.store import RunStore
     out, parts = Path(sys.argv[1]), Path(sys.argv[2])
     row, hist = (parts / "row").read_bytes(), (parts / "hist").read_bytes()
+
+    def append(name, data):
+        with open(out / name, "ab") as fh:
+            fh.write(data)
+
+    def hold(flag):
+        (parts / flag).touch()
+        while not (parts / flag.replace("ready", "release")).exists():
+            time.sleep(0.02)
+
     with RunStore(out).lock():
         # the runner is inside its append: half of the history line, then wait
-        with open(out / "history.csv", "ab") as fh:
-            fh.write(hist[: len(hist) // 2])
-        (parts / "ready").touch()
-        while not (parts / "release").exists():
-            time.sleep(0.02)
-        with open(out / "history.csv", "ab") as fh:
-            fh.write(hist[len(hist) // 2:])
-        with open(out / "results.csv", "ab") as fh:
-            fh.write(row[: len(row) // 2])
-        (parts / "ready2").touch()
-        while not (parts / "release2").exists():
-            time.sleep(0.02)
-        with open(out / "results.csv", "ab") as fh:
-            fh.write(row[len(row) // 2:])
+        append("history.csv", hist[: len(hist) // 2])
+        hold("ready")
+        append("history.csv", hist[len(hist) // 2:])
+        append("results.csv", row[: len(row) // 2])
+        hold("ready2")
+        append("results.csv", row[len(row) // 2:])
 """)
 
 

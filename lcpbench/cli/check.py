@@ -4,25 +4,29 @@ from __future__ import annotations
 
 import sys
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.workflows.check import EMVP_SLACK, W_RTOL, check, default_baseline, format_table
 
 __all__ = ["add_check_parser", "cmd_check"]
+
+
+_CHECK_DESCRIPTION = f"""
+Run every MVP-only solver with its defaults on every shipped set; exit 1 with a table of
+what regressed when a verified residual exceeds --tol, w differs from the stored reference
+by more than {W_RTOL:g} relative, or a median E-MVP count exceeds its baseline by more
+than {EMVP_SLACK:.0%}.
+"""
 
 
 def add_check_parser(sub) -> None:
     """Add ``lcpbench check`` to the subcommands ``sub``."""
     p = sub.add_parser(
         "check", help="regression checks of the MVP-only solvers on the shipped sets",
-        description="Run every MVP-only solver with its defaults on every shipped set; exit 1 "
-                    "with a table of what regressed when a verified residual exceeds --tol, "
-                    f"w differs from the stored reference by more than {W_RTOL:g} relative, "
-                    f"or a median E-MVP count exceeds its baseline by more than "
-                    f"{EMVP_SLACK:.0%}.")
+        description=_CHECK_DESCRIPTION)
     p.add_argument("--set", action="append", default=None, metavar="NAME",
                    help="shipped set name or .h5 path, repeatable (default: every shipped set)")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable (default: every MVP-only solver)")
+    add_spec_option(p, "solver", many=True,
+                    help="solver spec, repeatable (default: every MVP-only solver)")
     add_stop_options(p, per="run", with_stop=False)
     p.add_argument("--baseline", default=None, metavar="FILE",
                    help="baseline file (default problems/data/baselines.json)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core.defaults import DEFAULT_SOLVER, EXAMPLE_SCENE
 from lcpbench.sets import StoredSetError
 from lcpbench.workflows.generate import default_cache_dir, generate, parse_lows
@@ -13,22 +13,26 @@ from lcpbench.workflows.generate import default_cache_dir, generate, parse_lows
 __all__ = ["add_generate_parser", "cmd_generate"]
 
 
+_GENERATE_DESCRIPTION = """
+Simulate a scene with one solver and write, for each chosen step, the dense
+high-fidelity A (n MVPs), b, the dense low-fidelity matrices with their measured cost ratios,
+the QP consensus reference and provenance to an HDF5 set. Re-running into the same file
+resumes: instances already in it are verified and kept, and the simulation continues
+from the checkpoint FILE-stem.checkpoint.npz written beside the set after every step. A
+failed write (disk full) leaves the set as it was before that instance; the same command
+then resumes.
+"""
+
+
 def add_generate_parser(sub) -> None:
     """Add ``lcpbench generate`` to the subcommands ``sub``."""
     p = sub.add_parser(
         "generate", help="write a dense stored set from a live scene",
-        description="Simulate a scene with one solver and write, for each chosen step, the "
-                    "dense high-fidelity A (n MVPs), b, the dense low-fidelity matrices with "
-                    "their measured cost ratios, the QP consensus reference and provenance to "
-                    "an HDF5 set. Re-running into the same file resumes: instances already "
-                    "in it are verified and kept, and the simulation continues from the "
-                    "checkpoint FILE-stem.checkpoint.npz written beside the set after every "
-                    "step. A failed write (disk full) leaves the set as it was before that "
-                    "instance; the same command then resumes.")
-    p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
-                   help=f"scene spec (default {EXAMPLE_SCENE})")
-    p.add_argument("--solver", default=DEFAULT_SOLVER, metavar="NAME[:k=v,...]",
-                   help=f"solver that advances the simulation (default {DEFAULT_SOLVER})")
+        description=_GENERATE_DESCRIPTION)
+    add_spec_option(p, "scene", many=False, default=EXAMPLE_SCENE,
+                    help=f"scene spec (default {EXAMPLE_SCENE})")
+    add_spec_option(p, "solver", many=False, default=DEFAULT_SOLVER,
+                    help=f"solver that advances the simulation (default {DEFAULT_SOLVER})")
     p.add_argument("--steps", required=True, metavar="RANGE",
                    help="0-based steps to store, e.g. 31-50 or 0,3,5-7 (earlier steps are "
                         "simulated, not stored)")

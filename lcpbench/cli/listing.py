@@ -14,11 +14,16 @@ from lcpbench.core.specs import describe_params
 __all__ = ["add_list_parser", "cmd_list"]
 
 
+_LIST_DESCRIPTION = """
+List every registered solver, problem family and scene, with their parameters, types,
+defaults and documentation.
+"""
+
+
 def add_list_parser(sub) -> None:
     """Add ``lcpbench list`` to the subcommands ``sub``."""
     p = sub.add_parser("list", help="registered solvers, problem families and scenes",
-                       description="List every registered solver, problem family and scene, "
-                                   "with their parameters, types, defaults and documentation.")
+                       description=_LIST_DESCRIPTION)
     p.add_argument("what", nargs="?", choices=("solvers", "problems", "scenes", "all"),
                    default="all")
     p.add_argument("--json", action="store_true", help="machine-readable output")

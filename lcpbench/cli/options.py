@@ -10,7 +10,7 @@ from lcpbench.core import guards
 from lcpbench.core.registry import problem_estimate
 from lcpbench.core.residuals import STOP_RULES
 
-__all__ = ["add_stop_options", "add_force_option", "guard_problem"]
+__all__ = ["add_stop_options", "add_force_option", "add_spec_option", "guard_problem"]
 
 
 def add_stop_options(p: argparse.ArgumentParser, *, tol: Optional[float] = 1e-8,
@@ -27,6 +27,13 @@ def add_stop_options(p: argparse.ArgumentParser, *, tol: Optional[float] = 1e-8,
                        help="stop rule (default paper)")
     p.add_argument("--max-emvps", type=float, default=max_emvps,
                    help=f"E-MVP budget per {per} (default 5000)")
+
+
+def add_spec_option(p: argparse.ArgumentParser, kind: str, *, many: bool,
+                    default: Any = None, help: str) -> None:
+    """Add ``--KIND NAME[:k=v,...]``, a registry choice; repeatable when ``many``."""
+    extra: dict[str, Any] = {"action": "append"} if many else {}
+    p.add_argument(f"--{kind}", default=default, metavar="NAME[:k=v,...]", help=help, **extra)
 
 
 def add_force_option(p: argparse.ArgumentParser) -> None:

@@ -18,7 +18,7 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core import guards
 from lcpbench.core.api import requested_lows
 from lcpbench.core.clock import utc_now
@@ -37,17 +37,22 @@ __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "buil
 STORE_MARKERS = ("results.csv", "meta.json", "history.csv", ".lock", "checkpoints")
 
 
+_RUN_DESCRIPTION = """
+Run every solver on every problem instance, verify each answer, append rows to
+DIR/results.csv and render DIR/report.html. Without --solver and --problem: every
+MVP-only and reference solver on the default problem set. Re-running into the same DIR
+resumes.
+"""
+
+
 def add_run_parser(sub) -> None:
     p = sub.add_parser(
         "run", help="sweep solvers x problems into a run store, then write the HTML report",
-        description="Run every solver on every problem instance, verify each answer, append "
-                    "rows to DIR/results.csv and render DIR/report.html. Without --solver and "
-                    "--problem: every MVP-only and reference solver on the default problem "
-                    "set. Re-running into the same DIR resumes.")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable; a value in brackets sweeps: bi-pqn:low=[p3,p4]")
-    p.add_argument("--problem", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="problem spec, repeatable (values in brackets sweep)")
+        description=_RUN_DESCRIPTION)
+    add_spec_option(p, "solver", many=True,
+                    help="solver spec, repeatable; a value in brackets sweeps: bi-pqn:low=[p3,p4]")
+    add_spec_option(p, "problem", many=True,
+                    help="problem spec, repeatable (values in brackets sweep)")
     p.add_argument("--config", metavar="SWEEP.toml", help="sweep file (see sweeps/)")
     add_stop_options(p, tol=None, stop=None, max_emvps=None, per="run")
     p.add_argument("--repeat", type=int, default=None, help="runs per (instance, solver)")
@@ -68,12 +73,16 @@ def add_run_parser(sub) -> None:
     p.set_defaults(func=cmd_run)
 
 
+_REPORT_DESCRIPTION = """
+Render DIR/report.html and DIR/tables/ from a run store. The fidelity study of stored
+sets is computed once per set and cached in $XDG_CACHE_HOME/lcpbench (default
+~/.cache/lcpbench), so re-rendering takes seconds.
+"""
+
+
 def add_report_parser(sub) -> None:
     p = sub.add_parser("report", help="render DIR/report.html from a run store",
-                       description="Render DIR/report.html and DIR/tables/ from a run store. "
-                                   "The fidelity study of stored sets is computed once per "
-                                   "set and cached in $XDG_CACHE_HOME/lcpbench (default "
-                                   "~/.cache/lcpbench), so re-rendering takes seconds.")
+                       description=_REPORT_DESCRIPTION)
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--baseline", default=BASELINE_SOLVER,
                    help="solver the offline ratios and online speedups are measured against")
@@ -159,7 +168,7 @@ def check_plan(p: Plan, *, force: bool = False) -> None:
                                            matrix_free=not lcp.A.explicit, force=force)
             if refused:
                 raise ValueError(f"{run.problem.label}/{lcp.name}: {refused}")
-        names = requested_lows(run.solver.params)
+        names = requested_lows(run.solver.params, run.solver.name)
         if not names:
             continue
         lcp = p.lcp(run)

@@ -5,24 +5,28 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lcpbench.cli.options import add_stop_options
+from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core.defaults import EXAMPLE_SCENE, SIMULATE_SOLVER
 
 __all__ = ["add_simulate_parser", "cmd_simulate"]
 
 
+_SIMULATE_DESCRIPTION = """
+Simulate a scene (e.g. lattice:m=3,model=rpy) once per --solver with forward Euler, one
+LCP per time step, and write a row per step (kind=online) to the run store DIR;
+`lcpbench report DIR` renders the online table.
+"""
+
+
 def add_simulate_parser(sub) -> None:
     """Add ``lcpbench simulate`` to the subcommands ``sub``."""
     p = sub.add_parser("simulate", help="online run: simulate a scene once per solver",
-                       description="Simulate a scene (e.g. lattice:m=3,model=rpy) once per "
-                                   "--solver with forward Euler, one LCP per time step, and "
-                                   "write a row per step (kind=online) to the run store DIR; "
-                                   "`lcpbench report DIR` renders the online table.")
-    p.add_argument("--scene", default=EXAMPLE_SCENE, metavar="NAME[:k=v,...]",
-                   help=f"scene spec (default {EXAMPLE_SCENE}; low=[self] adds a "
-                        "low-fidelity operator for multi-fidelity solvers)")
-    p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
-                   help="solver spec, repeatable: one simulation each (default bb-pgd)")
+                       description=_SIMULATE_DESCRIPTION)
+    add_spec_option(p, "scene", many=False, default=EXAMPLE_SCENE,
+                    help=f"scene spec (default {EXAMPLE_SCENE}; low=[self] adds a "
+                         "low-fidelity operator for multi-fidelity solvers)")
+    add_spec_option(p, "solver", many=True,
+                    help="solver spec, repeatable: one simulation each (default bb-pgd)")
     p.add_argument("--steps", type=int, default=50, help="time steps per simulation (default 50)")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="run-store folder (default reports/simulate-<time>)")

@@ -16,12 +16,16 @@ from lcpbench.core.specs import make_params, parse_spec
 __all__ = ["add_solve_parser", "cmd_solve"]
 
 
+_SOLVE_DESCRIPTION = """
+Generate the instances of a problem family and solve each with every --solver; prints
+status, E-MVPs, verified residual and time per run.
+"""
+
+
 def add_solve_parser(sub) -> None:
     """Add ``lcpbench solve`` to the subcommands ``sub``."""
     p = sub.add_parser("solve", help="solve the instances of one problem family with solvers",
-                       description="Generate the instances of a problem family and solve "
-                                   "each with every --solver; prints status, E-MVPs, "
-                                   "verified residual and time per run.")
+                       description=_SOLVE_DESCRIPTION)
     p.add_argument("--problem", default=EXAMPLE_PROBLEM, metavar="NAME[:k=v,...]",
                    help=f"problem family spec (default {EXAMPLE_PROBLEM})")
     p.add_argument("--solver", action="append", default=None, metavar="NAME[:k=v,...]",
@@ -58,7 +62,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         sinfo = solvers()[sname]
         sparams = make_params(sname, sinfo.params, sraw)
         for lcp in lcps:
-            missing = [n for n in requested_lows(dataclasses.asdict(sparams)) if n not in lcp.low]
+            missing = [n for n in requested_lows(dataclasses.asdict(sparams), sname)
+                       if n not in lcp.low]
             if lcp.low and missing:
                 raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} on "
                                  f"{lcp.name} (it has: {', '.join(sorted(lcp.low))})")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import traceback
 import warnings
 from collections.abc import Callable
@@ -18,7 +19,7 @@ from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.guards import dense_refusal
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
-from lcpbench.core.registry import get_solver
+from lcpbench.core.registry import get_solver, solvers
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.core.specs import make_params, parse_spec
@@ -27,15 +28,20 @@ __all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
 
 
-def requested_lows(params: dict) -> list[str]:
-    """Low-fidelity operator names a solver's parameters ask for (``low`` and ``lows``).
+def requested_lows(params: dict, solver: Optional[str] = None) -> list[str]:
+    """Low-fidelity operator names a solver's parameter values ask for.
 
-    An empty ``low`` (the only low operator) asks for no name in particular.
+    The registry says which parameters name low operators
+    (:class:`~lcpbench.core.registry.LowOperators`, declared with
+    ``register_solver(..., multifidelity=...)``). Without ``solver``, the parameters
+    every registered solver declares are read. An empty single name (the only low
+    operator) asks for no name in particular.
     """
-    names = [params["low"]] if isinstance(params.get("low"), str) and params["low"] else []
-    lows = params.get("lows")
-    if isinstance(lows, (list, tuple)):
-        names += [str(x) for x in lows]
+    if solver is not None:
+        return get_solver(solver).lows.requested(params)
+    names: list[str] = []
+    for declared in {info.lows for info in solvers().values()}:
+        names += [n for n in declared.requested(params) if n not in names]
     return names
 
 
@@ -136,7 +142,7 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
             ctx.detach()
         check_infeasibility(ctx, res)         # a solver's own 'infeasible' is checked too
     res.time_s = ctx.elapsed()
-    return _complete(res, run, ctx, info, p, rule)
+    return _complete(res, run, ctx, info, p)
 
 
 def _dense_for(run: LCP, info, force: bool) -> tuple[Optional[np.ndarray], Optional[str]]:
@@ -164,7 +170,8 @@ def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
         if not isinstance(res, SolveResult):
             raise TypeError(f"solver {info.name!r} returned {type(res).__name__}, "
                             "expected a SolveResult (use ctx.finish(x, w))")
-        return res
+        # the framework's checks work on their own record: the solver's object stays as made
+        return dataclasses.replace(res, info=dict(res.info))
     except BudgetExhausted as exc:
         return _close_at_last(ctx, Status.timeout if exc.kind == "time" else Status.budget,
                               str(exc))
@@ -197,51 +204,66 @@ def _close_at_last(ctx: SolverContext, status: Status, message: str) -> SolveRes
     return SolveResult(x=x, w=w, status=status, message=message)
 
 
-def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params, rule) -> SolveResult:
-    import dataclasses
-
+def _checked_answer(res: SolveResult, run: LCP, ctx: SolverContext) -> tuple[np.ndarray, Status, str]:
+    """The solver's ``x`` with its status and message, held to shape, finiteness and the
+    operators' non-finite products (which fail the solve even when the solver caught them)."""
+    status, message = res.status, res.message
     x = np.asarray(res.x, dtype=np.float64).reshape(-1)
     if x.shape != (run.n,):
-        res.status, res.message = Status.failed, f"solver returned x of shape {x.shape}"
+        status, message = Status.failed, f"solver returned x of shape {x.shape}"
         x = ctx.x0.copy()
-    if not np.all(np.isfinite(x)):
-        if res.status != Status.failed:
-            res.status = Status.diverged
-            res.message = res.message or "non-finite solution"
+    if not np.all(np.isfinite(x)) and status != Status.failed:
+        status, message = Status.diverged, message or "non-finite solution"
     bad = [op for op in run.operators().values() if op.nonfinite_at is not None]
-    if bad:          # even when the solver caught the error and blamed the problem
-        res.status = Status.failed
-        res.message = (f"operator returned non-finite values at product {bad[0].nonfinite_at}"
-                       + ("" if bad[0].name == "high" else f" (operator {bad[0].name!r})"))
-    res.x = x
+    if bad:
+        status = Status.failed
+        message = (f"operator returned non-finite values at product {bad[0].nonfinite_at}"
+                   + ("" if bad[0].name == "high" else f" (operator {bad[0].name!r})"))
+    return x, status, message
+
+
+def _verified(ctx: SolverContext, run: LCP, x: np.ndarray, status: Status, message: str
+              ) -> tuple[dict, Status, str]:
+    """The framework's residuals at ``x`` (one uncounted product) and the claim held to them."""
+    if not np.all(np.isfinite(x)):
+        return {"kkt_abs": float("nan")}, status, message
+    verified = {"kkt_abs": float("nan")}
     try:
-        res.emvps = float(run.emvps())
+        w_verified = run.residual_w(x)
+        verified = all_residuals(x, w_verified, run.b)
+        # never 'converged' against the verification
+        status, message = verify_claim(ctx, status, x, w_verified, message)
+    except Exception as exc:  # the user's operator raised on the verifying product
+        status = Status.failed
+        message = (f"verification failed: {type(exc).__name__}: {exc}"
+                   + (f" (solver: {message})" if message else ""))
+    return verified, status, message
+
+
+def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> SolveResult:
+    """The result of the solve: the solver's answer checked, counted and verified, built once.
+
+    The solver's own ``SolveResult`` supplies ``x``, ``w``, the claim, ``time_s``,
+    ``state`` and its ``info``; everything else is the framework's.
+    """
+    x, status, message = _checked_answer(res, run, ctx)
+    try:
+        emvps = float(run.emvps())
     except Exception as exc:  # an undeclared cost whose measuring product raised
-        res.emvps = float("nan")
-        res.status, res.message = Status.failed, f"E-MVPs: {type(exc).__name__}: {exc}"
-    res.mvps = int(run.A.count)             # after emvps(): a cost calibration is counted too
-    res.lofi_mvps = run.lofi_counts()
-    res.mvp_time_s = float(sum(op.seconds for op in run.operators().values()))
-    res.iterations = ctx.iterations
-    res.history = ctx.monitor.frame()
-    res.claimed_kkt_abs = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
-    res.threshold = ctx.threshold
-    res.verified = {"kkt_abs": float("nan")}
-    if np.all(np.isfinite(x)):
-        try:
-            w_verified = run.residual_w(x)
-            res.verified = all_residuals(x, w_verified, run.b)
-            verify_claim(ctx, res, w_verified)      # never 'converged' against the verification
-        except Exception as exc:  # the user's operator raised on the verifying product
-            res.status = Status.failed
-            res.message = (f"verification failed: {type(exc).__name__}: {exc}"
-                           + (f" (solver: {res.message})" if res.message else ""))
-    res.solved = bool(res.verified["kkt_abs"] <= res.threshold)
-    res.solver = info.name
-    res.params = dataclasses.asdict(params)
-    res.mvp_only = info.mvp_only
-    res.info = {**ctx.info, **res.info}
-    return res
+        emvps = float("nan")
+        status, message = Status.failed, f"E-MVPs: {type(exc).__name__}: {exc}"
+    mvps = int(run.A.count)             # after emvps(): a cost calibration is counted too
+    lofi_mvps = run.lofi_counts()
+    mvp_time_s = float(sum(op.seconds for op in run.operators().values()))
+    claimed = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
+    verified, status, message = _verified(ctx, run, x, status, message)
+    return SolveResult(
+        x=x, w=res.w, status=status, message=message, mvps=mvps, lofi_mvps=lofi_mvps,
+        emvps=emvps, iterations=ctx.iterations, time_s=res.time_s, mvp_time_s=mvp_time_s,
+        history=ctx.monitor.frame(), claimed_kkt_abs=claimed, verified=verified,
+        solved=bool(verified["kkt_abs"] <= ctx.threshold), threshold=ctx.threshold,
+        solver=info.name, params=dataclasses.asdict(params), mvp_only=info.mvp_only,
+        info={**ctx.info, **res.info}, state=res.state)
 
 
 def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,

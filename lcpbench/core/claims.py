@@ -108,8 +108,9 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
     return res
 
 
-def verify_claim(ctx: SolverContext, res: SolveResult, w: np.ndarray) -> None:
-    """Hold ``res``'s ``converged`` to the framework's verification ``w = A x + b``.
+def verify_claim(ctx: SolverContext, status: Status, x: np.ndarray, w: np.ndarray,
+                 message: str) -> tuple[Status, str]:
+    """Hold a ``converged`` claim at ``x`` to the framework's verification ``w = A x + b``.
 
     The last word on a convergence claim: whatever confirmed it before (a drift
     bound, the operator's last product, a fresh product), a status is never
@@ -121,21 +122,20 @@ def verify_claim(ctx: SolverContext, res: SolveResult, w: np.ndarray) -> None:
     a product that is not reproducible cannot pass by chance. A refuted claim
     becomes ``stagnated``, with a message that says how accurate the operator
     is when it declared nothing, and
-    ``info['refuted_by_verification']``.
+    ``info['refuted_by_verification']``. Returns the status and message that stand.
     """
-    if res.status != Status.converged or ctx.n == 0:
-        return
-    x = np.asarray(res.x, dtype=np.float64).reshape(-1)
+    if status != Status.converged or ctx.n == 0:
+        return status, message
     worst = kkt_abs(x, w)
     if worst <= ctx.threshold and not ctx.A.explicit and not ctx.measured_exact():
         worst = max(worst, kkt_abs(x, apply_uncounted(ctx.A, x) + ctx.b))
     if worst <= ctx.threshold:
-        return
-    res.message = (f"convergence refuted by the framework's verification: at the returned x "
-                   f"||min(x, Ax+b)|| = {worst:.3g} > {ctx.threshold:.3g} (the solver said: "
-                   f"{res.message})" + ctx.accuracy_advice())
-    res.status = Status.stagnated
+        return status, message
     ctx.info["refuted_by_verification"] = worst
+    return Status.stagnated, (
+        f"convergence refuted by the framework's verification: at the returned x "
+        f"||min(x, Ax+b)|| = {worst:.3g} > {ctx.threshold:.3g} (the solver said: "
+        f"{message})" + ctx.accuracy_advice())
 
 
 def _candidates(ctx: SolverContext, x: np.ndarray, w: np.ndarray, D: np.ndarray,

@@ -25,16 +25,57 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Any, Optional
+from typing import Any, Optional, Union
 
 from lcpbench.core.specs import make_params, parse_spec
 
 __all__ = [
-    "SolverInfo", "ProblemInfo", "register_solver", "register_problem", "get_solver",
+    "LowOperators", "SolverInfo", "ProblemInfo", "register_solver", "register_problem", "get_solver",
     "get_problem", "solvers", "problems",
     "SceneInfo", "register_scene", "scenes", "get_scene", "make_scene",
     "SetInfo", "register_set", "stored_sets", "PluginError", "problem_estimate",
 ]
+
+
+@dataclass(frozen=True)
+class LowOperators:
+    """Which parameters of a multi-fidelity solver name its low-fidelity operators.
+
+    Declared with ``register_solver(..., multifidelity=LowOperators(...))``; the
+    framework (the sweep, the command line's checks, ``requested_lows``) asks this
+    declaration, never a parameter's name.
+
+    Attributes
+    ----------
+    one : str
+        The parameter naming one low operator, a string; empty at run time means
+        "the LCP's only one", and a sweep runs a spec that leaves it empty once per
+        low operator of an instance with several. Empty: no such parameter.
+    chain : str
+        The parameter naming an ordered list of low operators (empty list at run
+        time: all of them). Empty: no such parameter.
+    """
+
+    one: str = ""
+    chain: str = ""
+
+    def names(self) -> tuple[str, ...]:
+        """The declared parameter names."""
+        return tuple(n for n in (self.one, self.chain) if n)
+
+    def requested(self, params: dict) -> list[str]:
+        """The low operators ``params`` (a solver's parameter values) name, in order."""
+        one = params.get(self.one) if self.one else None
+        names = [one] if isinstance(one, str) and one else []
+        chain = params.get(self.chain) if self.chain else None
+        if isinstance(chain, (list, tuple)):
+            names += [str(x) for x in chain]
+        return names
+
+    def one_per_low(self, params: dict) -> bool:
+        """True when ``params`` leave the low operator to choose (run once per low)."""
+        return bool(self.one) and self.one in params and not params[self.one] \
+            and not (self.chain and params.get(self.chain))
 
 
 @dataclass(frozen=True)
@@ -56,6 +97,8 @@ class SolverInfo:
         True for the reference QP solvers (ground truth, not benchmarked on MVPs).
     multifidelity : bool
         True when the solver uses low-fidelity operators.
+    lows : LowOperators
+        Which of its parameters name low operators (none for a mono-fidelity solver).
     summary : str
         First line of the docstring.
     listed : bool
@@ -72,6 +115,7 @@ class SolverInfo:
     multifidelity: bool = False
     summary: str = ""
     listed: bool = True
+    lows: LowOperators = LowOperators()
 
     @property
     def mvp_only(self) -> bool:
@@ -141,7 +185,8 @@ def _registrar(kind: str, table: dict, name: str, params: type, make_info: Calla
 
 
 def register_solver(name: str, params: type, *, needs_dense: bool = False,
-                    reference: bool = False, multifidelity: bool = False, listed: bool = True):
+                    reference: bool = False, multifidelity: Union[bool, LowOperators] = False,
+                    listed: bool = True):
     """Decorator registering ``func(ctx, params)`` as solver ``name``.
 
     Parameters
@@ -150,11 +195,20 @@ def register_solver(name: str, params: type, *, needs_dense: bool = False,
         Kebab-case registry name.
     params : type
         Frozen dataclass of the solver's parameters, every field with a default.
-    needs_dense, reference, multifidelity, listed : bool
+    multifidelity : bool or LowOperators
+        The solver uses low-fidelity operators; a :class:`LowOperators` also says
+        which of its parameters name them (each must be a field of ``params``).
+    needs_dense, reference, listed : bool
         See :class:`SolverInfo`.
     """
+    lows = multifidelity if isinstance(multifidelity, LowOperators) else LowOperators()
+    if dataclasses.is_dataclass(params):
+        unknown = [n for n in lows.names() if n not in {f.name for f in dataclasses.fields(params)}]
+        if unknown:
+            raise TypeError(f"solver {name!r} declares low-operator parameter(s) "
+                            f"{', '.join(unknown)} that {params.__name__} does not have")
     return _registrar("solver", _SOLVERS, name, params, lambda func, summary: SolverInfo(
-        name, func, params, needs_dense, reference, multifidelity, summary, listed))
+        name, func, params, needs_dense, reference, bool(multifidelity), summary, listed, lows))
 
 
 def register_problem(name: str, params: type, *, default: bool = False,

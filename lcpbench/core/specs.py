@@ -17,7 +17,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Optional
 
-__all__ = ["split_top_level", "parse_spec", "make_params", "describe_params", "Bounds",
+__all__ = ["split_top_level", "parse_spec", "make_params", "describe_params", "Bounds", "Doc",
            "CheckedParams", "check_bounds"]
 
 
@@ -149,6 +149,18 @@ def _convert(owner: str, key: str, tp: Any, value: Any) -> Any:
 
 # ---------------------------------------------------------------------- declared bounds
 @dataclass(frozen=True)
+class Doc:
+    """The documentation of a parameter, declared in its type hint beside its bounds.
+
+    ``n: Annotated[int, Bounds(ge=1), Doc("Size of every instance.")]``: a type alias
+    that several parameter classes share documents the parameter once. An entry of
+    the class's own ``Parameters`` docstring section takes precedence.
+    """
+
+    text: str
+
+
+@dataclass(frozen=True)
 class Bounds:
     """Allowed values of a numeric parameter, declared in its type hint.
 
@@ -270,6 +282,7 @@ def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
     bases', so parameters declared once in a base class are documented once there.
     """
     hints = typing.get_type_hints(cls)
+    declared = typing.get_type_hints(cls, include_extras=True)
     docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):   # a subclass documents its own and overrides
         docs.update({k: v for k, v in _param_docs(klass.__dict__.get("__doc__") or "").items()
@@ -282,8 +295,15 @@ def describe_params(cls: type) -> list[tuple[str, str, Any, str]]:
             tname = "one of " + "|".join(str(c) for c in typing.get_args(tp))
         else:
             tname = getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
-        out.append((f.name, tname, default, docs.get(f.name, "")))
+        out.append((f.name, tname, default, docs.get(f.name) or _declared_doc(declared[f.name])))
     return out
+
+
+def _declared_doc(tp: Any) -> str:
+    """The text of a :class:`Doc` in an ``Annotated`` type hint ("" without one)."""
+    if typing.get_origin(tp) is typing.Annotated:
+        return next((m.text for m in tp.__metadata__ if isinstance(m, Doc)), "")
+    return ""
 
 
 def _param_docs(doc: str) -> dict[str, str]:

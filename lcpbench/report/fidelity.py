@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.report import plots
+from lcpbench.report.markup import html_table
 from lcpbench.workflows.fidelity import TABLE_COLUMNS, cache_entry, cached_fidelity_table
 
 __all__ = ["GRID_MODELS", "cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
@@ -114,13 +115,6 @@ def cottle_heatmap_svg(table: pd.DataFrame) -> str:
     return plots.svg_of(fig)
 
 
-def _html_table(df: pd.DataFrame) -> str:
-    if df is None or df.empty:
-        return '<p class="note">(no rows)</p>'
-    return df.to_html(index=False, escape=True, na_rep="-", border=0,
-                      float_format=lambda v: f"{v:.4g}")
-
-
 def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
     """HTML: the two heatmaps (inline SVG) and a small table of the other fidelities.
 
@@ -139,7 +133,7 @@ def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
         if not others.empty:
             parts.append("<p class='note'>Fidelities not on the (p, eps_gmres) grid (other "
                          "models, or a knob missing):</p>")
-            parts.append(_html_table(others))
+            parts.append(html_table(others, digits=4))
     return "\n".join(parts)
 
 
@@ -193,7 +187,7 @@ def fidelity_section(paths: Iterable, cache_dir=None,
             continue
         used = f"{len(ids)} selected instance(s)" if ids is not None else "all instances"
         parts.append(f"<h3>{html.escape(title)}: {used}</h3>")
-        parts.append(_html_table(table))
+        parts.append(html_table(table, digits=4))
         parts.append(heatmaps(table, id_prefix=f"fid{k}a_"))
         cottle = cottle_heatmap_svg(table)
         if cottle:

@@ -18,16 +18,21 @@ import json
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.registry import solvers
 from lcpbench.report import plots, tables
 from lcpbench.report.colors import solver_colors
+from lcpbench.report.markup import html_table
 
 __all__ = ["fidelity_map_table", "fidelity_map_section"]
 
 
-def _low_of(params: str) -> tuple:
-    """``(shape, error)`` from a run's ``solver_params`` JSON; (None, nan) if none."""
+def _low_of(solver: str, params: str) -> tuple:
+    """``(shape, error)`` of the one low operator a run's ``solver_params`` JSON names;
+    (None, nan) if none (the registry says which parameter names it)."""
+    info = solvers().get(str(solver))
+    key = info.lows.one if info is not None else ""
     try:
-        low = json.loads(params).get("low", "")
+        low = json.loads(params).get(key, "") if key else ""
     except (TypeError, ValueError, AttributeError):
         return None, float("nan")
     shape, sep, err = str(low).rpartition("~")
@@ -42,7 +47,7 @@ def fidelity_map_table(results: pd.DataFrame) -> pd.DataFrame:
     if results.empty or "solver_params" not in results:
         return pd.DataFrame()
     res = results[tables.solved_mask(results)]
-    parsed = res["solver_params"].map(_low_of)
+    parsed = [_low_of(s, p) for s, p in zip(res["solver_name"], res["solver_params"])]
     res = res.assign(shape=[p[0] for p in parsed], rel_error=[p[1] for p in parsed])
     multi = res[res["shape"].notna()]
     if multi.empty:
@@ -103,8 +108,7 @@ def fidelity_map_section(results: pd.DataFrame, *, colors: dict | None = None
     table = fidelity_map_table(results)
     if table.empty:
         return "", table
-    body = table.to_html(index=False, escape=True, na_rep="-", border=0,
-                         float_format=lambda v: f"{v:.3g}")
+    body = html_table(table)
     parts = ["<h2 id='fidelity-map'>Fidelity advantage</h2>"
              "<p class='note'>Median high-fidelity MVPs and E-MVPs "
              "of the multi-fidelity solvers (verified-solved runs) against the relative error "

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import pandas as pd
 
 from lcpbench.report import plots, ranking, tables
+from lcpbench.report.markup import html_table
 
 __all__ = ["SetView", "set_views", "summary_table", "set_section", "references_section",
            "CONVENTIONS"]
@@ -131,14 +132,13 @@ def _view(view: SetView, body: str, caption: str) -> str:
 
 
 def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, anchor: str,
-                fig: Callable[[str], str], table_html: Callable[..., str],
-                write: Callable[[str, pd.DataFrame], None]) -> str:
+                fig: Callable[[str], str], write: Callable[[str, pd.DataFrame], None]) -> str:
     """HTML of one problem set: table, box plot, convergence, work-precision and profiles."""
     parts = [f"<h3 id='{anchor}'>{html.escape(view.problem)}</h3>"]
     n_inst = view.info["instances"]
     if not view.cut.empty:
         table = ranking.ranking_table(view.cut, baseline, meta)
-        parts.append(_view(view, table_html(table), _caption(
+        parts.append(_view(view, html_table(table), _caption(
             view, f"E-MVPs per solver (failures count at {table.attrs['penalty']:.3g} in the "
                   "shifted GM)")))
         solved = view.cut[ranking.truthy(view.cut["solved"])]
@@ -158,7 +158,7 @@ def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, ancho
     wp = tables.work_precision(view.cut_time, view.history)
     write(f"work_precision_{anchor}", wp)
     if not wp.empty:
-        parts.append(_view(view, table_html(tables.work_precision_display(wp)),
+        parts.append(_view(view, html_table(tables.work_precision_display(wp)),
                            _caption(view, "Speed against error (E-MVPs, seconds, k/m)")))
         profiles = {m: tables.performance_profile(view.cut if m == "emvps" else view.cut_time,
                                                   m) for m in ("emvps", "time_s")}
@@ -175,7 +175,7 @@ def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, ancho
     return "\n".join(parts)
 
 
-def references_section(results: pd.DataFrame, table_html: Callable[..., str],
+def references_section(results: pd.DataFrame,
                        write: Callable[[str, pd.DataFrame], None]) -> str:
     """The reference QP solvers in their own table (never in a ranking)."""
     refs = ranking.references_table(results)
@@ -189,4 +189,4 @@ def references_section(results: pd.DataFrame, table_html: Callable[..., str],
             "seconds, the median verified residual ||min(x, Ax+b)|| (needs no reference), what "
             "the set's reference is made of (most often), on how many instances the solver was part of the consensus, and the median error "
             "of w against a reference that did not include it (the count in parentheses; - "
-            "where it was in every consensus).</p>" + table_html(refs, text=False))
+            "where it was in every consensus).</p>" + html_table(refs))

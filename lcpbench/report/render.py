@@ -17,6 +17,7 @@ import json
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -25,10 +26,11 @@ from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.report import fidelity_map, offline, plots, tables
 from lcpbench.report.colors import solver_colors
 from lcpbench.report.fidelity import fidelity_section
+from lcpbench.report.markup import html_table, markdown_table
 from lcpbench.run.store import RunStore, atomic_write
 from lcpbench.workflows.fidelity import stored_set_specs, user_cache_dir
 
-__all__ = ["render_report", "stderr_progress", "markdown_table"]
+__all__ = ["render_report", "stderr_progress", "markdown_table", "Section", "SECTIONS"]
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;
@@ -58,37 +60,6 @@ def stderr_progress(prefix: str = "lcpbench report") -> Callable[[str], None]:
     return say
 
 
-def _table_html(df: pd.DataFrame, text: bool = False) -> str:
-    """An HTML table; ``text`` left-aligns every column (tables of messages)."""
-    if df is None or df.empty:
-        return '<p class="note">(no rows)</p>'
-    return df.to_html(index=False, escape=True, na_rep="-", border=0,
-                      classes="text" if text else None, float_format=lambda v: f"{v:.3g}")
-
-
-def _md_cell(value) -> str:
-    """A Markdown table cell that renders as the text it holds, never as HTML or markup.
-
-    ``<``, ``>``, ``&`` and quotes become HTML entities (a ``<script>`` in a plugin's
-    message stays text), ``|`` is escaped so it cannot split the cell, and line breaks
-    become spaces so they cannot end the row.
-    """
-    text = html.escape(str(value), quote=True).replace("|", "\\|")
-    return " ".join(text.splitlines())
-
-
-def markdown_table(df: pd.DataFrame) -> str:
-    """``df`` as a Markdown table with every header and cell escaped (:func:`_md_cell`)."""
-    if df is None or df.empty:
-        return "(no rows)\n"
-    shown = df.copy()
-    for col in shown.columns:
-        if not pd.api.types.is_numeric_dtype(shown[col]):
-            shown[col] = shown[col].map(lambda v: v if pd.isna(v) else _md_cell(v))
-    shown.columns = [_md_cell(c) for c in shown.columns]
-    return shown.to_markdown(index=False) + "\n"
-
-
 def _write_table(out: Path, name: str, df: pd.DataFrame) -> None:
     out.mkdir(exist_ok=True)
     if df is None or df.empty:
@@ -112,9 +83,37 @@ def _anchor(k: int) -> str:
     return f"set{k + 1}"
 
 
+@dataclass(frozen=True)
+class Section:
+    """One part of the page: its anchor, its entry in the contents (level 2, or 3 for a
+    problem set) and its HTML."""
+
+    anchor: str
+    title: str
+    html: str
+    level: int = 2
+
+
+@dataclass
+class _Page:
+    """What every section builder reads: the run store's data and the page's services."""
+
+    res: pd.DataFrame
+    hist: pd.DataFrame
+    meta: dict
+    baseline: str
+    colors: dict
+    fig: Callable[[str], str]                         # an SVG as a numbered figure
+    write: Callable[[str, pd.DataFrame], None]        # a table to DIR/tables/
+    say: Callable[[str], None]
+
+
 def render_report(path, baseline: str = BASELINE_SOLVER,
                   progress: Callable[[str], None] | None = None) -> Path:
     """Render ``DIR/report.html`` (and ``DIR/tables/*``) from the run store at ``path``.
+
+    The page is the sections of :data:`SECTIONS` in order, each builder returning
+    its :class:`Section` list (empty when the store has nothing for it).
 
     Parameters
     ----------
@@ -142,8 +141,6 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     say("reading the run store")
     store = RunStore(folder)
     res = store.results()
-    hist = store.history()
-    meta = store.read_meta() or {}
     tdir = folder / "tables"
     fig_no = [0]
 
@@ -151,96 +148,109 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
         fig_no[0] += 1
         return f'<div class="fig">{plots.prefix_ids(svg, f"f{fig_no[0]}_")}</div>'
 
-    def write(name: str, df: pd.DataFrame) -> None:
-        _write_table(tdir, name, df)
-
     _drop_stale_tables(tdir)
-    colors = solver_colors(res["solver"].astype(str).unique()) if len(res) else {}
+    page = _Page(res, store.history(), store.read_meta() or {}, baseline,
+                 solver_colors(res["solver"].astype(str).unique()) if len(res) else {}, fig,
+                 lambda name, df: _write_table(tdir, name, df), say)
     say("offline tables and figures, per problem set")
-    _write_table(tdir, "offline", tables.offline_table(res))
-    toc: list[tuple[str, str, int]] = []
-    body: list[str] = []
-    _offline_parts(res, hist, meta, toc, body, baseline=baseline, colors=colors, fig=fig,
-                   write=write, say=say)
-    refs = offline.references_section(res, _table_html, write)
-    if refs:
-        toc.append(("references", "Reference QP solvers", 2))
-        body.append(refs)
-    fails = tables.failures_table(res)
-    write("failures", fails)
-    toc.append(("failures", f"Runs not solved ({len(fails)})", 2))
-    body.append(f"<h2 id='failures'>Runs not solved ({len(fails)})</h2><p class='note'>Every "
-                "run whose verified residual missed the tolerance, with the solver's status "
-                "and message.</p>" + _table_html(fails, text=True))
-    if len(tables.online_runs(res)):
-        say("online table")
-        paper = tables.online_paper_table(res, baseline)
-        write("online_paper", paper)
-        write("online", tables.online_table(res, baseline))
-        write("online_left_out", tables.online_left_out(res))
-        toc.append(("online", "Online simulations", 2))
-        body.append(_online_section(res, paper, baseline, fig, colors))
-    fmap_html, fmap = fidelity_map.fidelity_map_section(res, colors=colors)
-    if fmap_html:
-        write("fidelity_map", fmap)
-        toc.append(("fidelity-map", "Fidelity advantage", 2))
-        body.append(fmap_html)
-    stored_sets = stored_set_specs(res)
-    if stored_sets:
-        fid = fidelity_section(stored_sets, cache_dir=user_cache_dir(), progress=say,
-                               names=_set_names(res))
-        if fid:
-            toc.append(("fidelity", "Fidelity study of the stored sets", 2))
-            body.append(fid)
-    page = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+    page.write("offline", tables.offline_table(res))
+    sections = [section for build in SECTIONS for section in build(page)]
+    text = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             "<title>lcpbench report</title><style>" + _CSS + "</style></head><body>"
-            "<h1>lcpbench report</h1>" + _toc_html(toc)
-            + "\n".join(p for p in body if p) + "</body></html>\n")
+            "<h1>lcpbench report</h1>" + _toc_html(sections)
+            + "\n".join(s.html for s in sections if s.html) + "</body></html>\n")
     out = folder / "report.html"
-    atomic_write(out, page)
+    atomic_write(out, text)
     say(f"wrote {out}")
     return out
 
 
-def _offline_parts(res: pd.DataFrame, hist: pd.DataFrame, meta: dict, toc: list, body: list,
-                   *, baseline: str, colors: dict, fig: Callable[[str], str],
-                   write: Callable[[str, pd.DataFrame], None],
-                   say: Callable[[str], None]) -> None:
-    """Append the summary, the run's metadata and one section per problem set to ``body``."""
-    views = offline.set_views(res, hist)
+def _offline_sections(page: _Page) -> list[Section]:
+    """The summary, the run's metadata and one section per problem set."""
+    views = offline.set_views(page.res, page.hist)
+    out = []
     if views:
-        summary = offline.summary_table(views, meta)
-        write("summary", summary)
-        toc.append(("summary", "Summary", 2))
-        body.append("<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
-                    "problem size n, the instances compared (those every compared solver "
-                    "was given, of the set's), the solvers compared, and at each residual "
-                    "level the solver with the lowest shifted geometric mean of the E-MVPs "
-                    "to first reach it (a run that never reached it counts at the penalty): "
-                    "its median E-MVPs over its runs that reached the level, and how many "
-                    "did.</p>" + _table_html(summary, text=True))
-    toc.append(("run", "Run", 2))
-    body.append(_meta_section(meta, res))
+        summary = offline.summary_table(views, page.meta)
+        page.write("summary", summary)
+        out.append(Section("summary", "Summary", (
+            "<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
+            "problem size n, the instances compared (those every compared solver "
+            "was given, of the set's), the solvers compared, and at each residual "
+            "level the solver with the lowest shifted geometric mean of the E-MVPs "
+            "to first reach it (a run that never reached it counts at the penalty): "
+            "its median E-MVPs over its runs that reached the level, and how many "
+            "did.</p>" + html_table(summary, text=True))))
+    out.append(Section("run", "Run", _meta_section(page.meta, page.res)))
     if not views:
-        return
-    toc.append(("offline", "Offline comparison, per problem set", 2))
+        return out
     shift = offline.ranking.SHIFT["emvps"]
-    body.append("<h2 id='offline'>Offline comparison, per problem set</h2><p class='note'>"
-                + offline.CONVENTIONS.format(shift_e=shift)
-                + f" The baseline of the ratios is {html.escape(baseline)}.</p>")
+    out.append(Section("offline", "Offline comparison, per problem set", (
+        "<h2 id='offline'>Offline comparison, per problem set</h2><p class='note'>"
+        + offline.CONVENTIONS.format(shift_e=shift)
+        + f" The baseline of the ratios is {html.escape(page.baseline)}.</p>")))
     for k, view in enumerate(views):
-        say(f"problem set {k + 1}/{len(views)}: {view.problem}")
-        toc.append((_anchor(k), view.problem, 3))
-        body.append(offline.set_section(view, baseline=baseline, meta=meta, colors=colors,
-                                        anchor=_anchor(k), fig=fig, table_html=_table_html,
-                                        write=write))
+        page.say(f"problem set {k + 1}/{len(views)}: {view.problem}")
+        out.append(Section(_anchor(k), view.problem, offline.set_section(
+            view, baseline=page.baseline, meta=page.meta, colors=page.colors,
+            anchor=_anchor(k), fig=page.fig, write=page.write), level=3))
+    return out
 
 
-def _toc_html(toc: list[tuple[str, str, int]]) -> str:
+def _references_sections(page: _Page) -> list[Section]:
+    refs = offline.references_section(page.res, page.write)
+    return [Section("references", "Reference QP solvers", refs)] if refs else []
+
+
+def _failures_sections(page: _Page) -> list[Section]:
+    fails = tables.failures_table(page.res)
+    page.write("failures", fails)
+    title = f"Runs not solved ({len(fails)})"
+    return [Section("failures", title, (
+        f"<h2 id='failures'>{title}</h2><p class='note'>Every "
+        "run whose verified residual missed the tolerance, with the solver's status "
+        "and message.</p>" + html_table(fails, text=True)))]
+
+
+def _online_sections(page: _Page) -> list[Section]:
+    if not len(tables.online_runs(page.res)):
+        return []
+    page.say("online table")
+    paper = tables.online_paper_table(page.res, page.baseline)
+    page.write("online_paper", paper)
+    page.write("online", tables.online_table(page.res, page.baseline))
+    page.write("online_left_out", tables.online_left_out(page.res))
+    return [Section("online", "Online simulations", _online_html(
+        page.res, paper, page.baseline, page.fig, page.colors))]
+
+
+def _fidelity_map_sections(page: _Page) -> list[Section]:
+    fmap_html, fmap = fidelity_map.fidelity_map_section(page.res, colors=page.colors)
+    if not fmap_html:
+        return []
+    page.write("fidelity_map", fmap)
+    return [Section("fidelity-map", "Fidelity advantage", fmap_html)]
+
+
+def _fidelity_study_sections(page: _Page) -> list[Section]:
+    stored_sets = stored_set_specs(page.res)
+    if not stored_sets:
+        return []
+    fid = fidelity_section(stored_sets, cache_dir=user_cache_dir(), progress=page.say,
+                           names=_set_names(page.res))
+    return [Section("fidelity", "Fidelity study of the stored sets", fid)] if fid else []
+
+
+#: The page's sections, in order.
+SECTIONS: tuple[Callable[[_Page], list[Section]], ...] = (
+    _offline_sections, _references_sections, _failures_sections, _online_sections,
+    _fidelity_map_sections, _fidelity_study_sections)
+
+
+def _toc_html(sections: list[Section]) -> str:
     items = []
-    for anchor, title, level in toc:
-        cls = " class='sub'" if level > 2 else ""
-        items.append(f"<li{cls}><a href='#{anchor}'>{html.escape(title)}</a></li>")
+    for s in sections:
+        cls = " class='sub'" if s.level > 2 else ""
+        items.append(f"<li{cls}><a href='#{s.anchor}'>{html.escape(s.title)}</a></li>")
     return f"<nav id='contents'><h2>Contents</h2><ul>{''.join(items)}</ul></nav>"
 
 
@@ -255,8 +265,8 @@ def _set_names(res: pd.DataFrame) -> dict[str, str]:
     return names
 
 
-def _online_section(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
-                    fig: Callable[[str], str], colors: dict) -> str:
+def _online_html(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
+                 fig: Callable[[str], str], colors: dict) -> str:
     """The paper-shaped online table and its E-MVP box plot (same rows), then what was left out."""
     b = html.escape(baseline)
     parts = ["<h2 id='online'>Online simulations</h2>",
@@ -279,7 +289,7 @@ def _online_section(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
         parts.append("<p class='note'>No step is left to compare once the warm-up steps and "
                      "the steps without contacts are set apart: no speedup is given.</p>")
     else:
-        parts.append(_table_html(tables.online_paper_display(paper)))
+        parts.append(html_table(tables.online_paper_display(paper)))
     steps = tables.online_step_rows(res)
     if len(steps) and pd.to_numeric(steps["emvps"], errors="coerce").notna().any():
         groups = list(dict.fromkeys(steps["size"]))
@@ -296,13 +306,13 @@ def _online_section(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
         parts.append("<h3>Steps left out of the speedups</h3><p class='note'>Per scene and "
                      "solver: the warm-up steps and the steps without contacts, with their "
                      "summed seconds and E-MVPs.</p>")
-        parts.append(_table_html(apart, text=True))
+        parts.append(html_table(apart, text=True))
     parts.append("<h3>Per scene and solver</h3><p class='note'>Every simulation over all the "
                  "steps it finished, warm-up and contact-free steps included (the step counts "
                  "of one scene may differ here): summed total and collision-resolution "
                  "seconds, median E-MVPs and MVPs per step, the largest overlap after a step "
                  "and the steps solved (verified).</p>")
-    parts.append(_table_html(tables.online_table(res, baseline)))
+    parts.append(html_table(tables.online_table(res, baseline)))
     return "\n".join(parts)
 
 

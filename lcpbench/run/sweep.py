@@ -79,16 +79,18 @@ def per_low(spec: Spec, lows: Iterable[str]) -> list[Spec]:
 
     ``bi-pqn`` needs one low operator; on an instance with several (a stored
     set with p3, p4 and RPY fidelities) the sweep runs it at each, as the
-    paper's table reports Bi-PQN per low fidelity. Specs that name their low
-    operator, solvers without a ``low`` parameter and instances with fewer than
-    two lows give ``[spec]``.
+    paper's table reports Bi-PQN per low fidelity. The solver's registered
+    :class:`~lcpbench.core.registry.LowOperators` says which parameter names
+    that operator. Specs that name their low operator (or a chain), solvers
+    without such a parameter and instances with fewer than two lows give ``[spec]``.
     """
     lows = sorted(lows)
-    if "low" not in spec.params or "lows" in spec.params or spec.params["low"] \
-            or len(lows) < 2:
+    declared = get_solver(spec.name).lows
+    if not declared.one_per_low(spec.params) or len(lows) < 2:
         return [spec]
-    given = tuple(kv for kv in spec.given if kv[0] != "low")
-    return [Spec(spec.name, given + (("low", k),), {**spec.params, "low": k}) for k in lows]
+    key = declared.one
+    given = tuple(kv for kv in spec.given if kv[0] != key)
+    return [Spec(spec.name, given + ((key, k),), {**spec.params, key: k}) for k in lows]
 
 def _is_list_type(tp: Any) -> bool:
     origin = typing.get_origin(tp)

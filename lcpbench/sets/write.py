@@ -6,8 +6,8 @@ replaces the file with the whole image, written by Python to a temporary file be
 flushed to the disk (fsync) and renamed over the set. A full disk or an I/O error is then an
 ordinary ``OSError`` of that write, never an HDF5 library error mid-write that leaves the
 file's metadata inconsistent (or crashes the process); the file on disk is always the image
-after the last finished instance. Rewriting the image costs a few milliseconds per instance
-for sets of the shipped sizes (3-9 MB; docs/benchmarks.md).
+after the last finished instance. What rewriting the image costs per instance is measured in
+docs/benchmarks.md ("Writing stored sets: the cost of an atomic replace per instance").
 """
 
 from __future__ import annotations

@@ -2,10 +2,9 @@
 
 Solvers and operators here make many small dense products and solves (prox systems of the
 secant rank, per-sphere blocks of the boundary-integral backend).  A threaded BLAS spends
-more time starting threads than computing on such sizes, and on a loaded machine far more:
-a 120 x 120 ``numpy.linalg.solve`` took 4-37 ms with the default threads against 0.1 ms on
-one (2-core machine under load), and a Mono-PQN solve with 60 secant pairs 1.5 s against
-0.18 s.  threadpoolctl sets the limit; its scan of the loaded libraries is done once.
+more time starting threads than computing on such sizes, and on a loaded machine far more
+(docs/benchmarks.md, "One BLAS thread: the measurements behind it").  threadpoolctl sets
+the limit; its scan of the loaded libraries is done once.
 """
 
 from __future__ import annotations
@@ -37,9 +36,8 @@ def on_one_blas_thread(method: Callable) -> Callable:
 
     Used on the products of the boundary-integral mobility: their dense per-sphere products
     are small, and beside the parallel compiled kernels a threaded BLAS is many times
-    slower on a loaded machine (measured 45 ms against 1.5 ms for the one-body
-    preconditioner of 27 spheres at p = 8).  Entering the limit costs about 10
-    microseconds.
+    slower on a loaded machine (docs/benchmarks.md, "One BLAS thread: the measurements
+    behind it"), while entering the limit costs next to nothing.
     """
     @functools.wraps(method)
     def wrapped(*args, **kwargs):

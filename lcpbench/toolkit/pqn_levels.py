@@ -1,4 +1,4 @@
-"""The iteration machinery of the PQN solvers, one fidelity level at a time.
+"""The iteration machinery of the PQN solvers at one fidelity level.
 
 A *level* minimises a convex (or, for a poor low-fidelity model, possibly
 non-convex) quadratic over ``z >= 0`` given only
@@ -12,9 +12,8 @@ iteration costs exactly one product with ``Q`` (section "Mono-PQN Step Size
 Selection", remark "Computing eta* requires no extra MVPs").
 
 * :func:`mono_level` is the paper's Mono-PQN algorithm on that quadratic.
-* :func:`bi_level` is the paper's Bi-PQN algorithm: its PQN subproblem is
-  solved by the next level down, which is :func:`mono_level`
-  for Bi-PQN and another :func:`bi_level` for the multi-fidelity chain.
+* :func:`iterate_level` is the loop every level runs (Mono-PQN here, Bi-PQN in
+  :mod:`lcpbench.toolkit.pqn_bilevel`), given its direction and model update.
 
 Levels exchange secant pairs as :class:`Pairs` (``S``, ``Y = Q S`` and, when
 the receiving level has an operator base ``B0``, the cached ``B0 S``), so
@@ -29,20 +28,48 @@ from typing import Annotated, Literal, Optional
 
 import numpy as np
 
-from lcpbench.core.residuals import kkt_abs
 from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.prox import compact_prox
-from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, OperatorBFGS, Pairs, Rank2
+from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Pairs, Rank2
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
-__all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "mono_level",
-           "bi_level", "low_start", "pqn_direction", "optimal_step", "model_check",
-           "forcing_term"]
+__all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "LevelTask",
+           "HANDOFF", "mono_level", "iterate_level", "pqn_direction", "optimal_step",
+           "model_check", "forcing_term"]
 
 
 @dataclass(frozen=True)
 class MonoOptions(CheckedParams):
-    """Choices of a Mono-PQN level (documented on the solvers' parameters, ``mono-pqn``)."""
+    """Choices of a Mono-PQN level (the parameters of ``mono-pqn``).
+
+    Parameters
+    ----------
+    memory : int
+        Secant pairs kept in the BFGS model ``B = D + U U' - V V'`` (0: all, up
+        to the iteration cap and at most n, the oldest dropped beyond n; the
+        paper uses full memory since it converges in about ten iterations).
+    scaling : str
+        ``bb`` (default): ``D = I / (gamma tau_BB2)`` from the newest pair, as the
+        authors' code does; ``identity``: ``D = I`` as written in the paper's Mono-PQN algorithm.
+        ``bb`` needs fewer MVPs on every family we measured (docs/benchmarks.md).
+    gamma : float
+        Damping of the BB2 scaling (authors' value 0.8).
+    prox_tol : float
+        Tolerance of the semi-smooth Newton root solve of the weighted prox (the
+        paper's proposition on the weighted non-negative prox).
+    prox_max_iter : int
+        Newton iterations before the weighted prox falls back to an accelerated
+        projected gradient solve in the metric (reported as ``prox_fallbacks``).
+    recompute_every : int
+        Recompute ``A x`` exactly (one extra MVP) every this many iterations to
+        bound the drift of the recurrence ``A x+ = A x + eta A p``; 0 never.
+        Default 50: far beyond the paper's ten-odd iterations, so the extra MVP
+        appears only on hard problems.
+    free_pair : bool
+        With a nonzero warm start ``x0``, seed the BFGS memory with the free
+        secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
+        gradient and ``A 0 = 0`` (as the authors' code does).
+    """
 
     memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
     scaling: Literal["bb", "identity"] = "bb"
@@ -55,7 +82,57 @@ class MonoOptions(CheckedParams):
 
 @dataclass(frozen=True)
 class BiOptions(MonoOptions):
-    """Choices of a Bi-PQN level (documented on the solvers' parameters, ``bi-pqn``)."""
+    """Choices of a Bi-PQN level (the parameters of ``bi-pqn`` and ``multi-pqn``); memory,
+    scaling and gamma of :class:`MonoOptions` also set the fallback model.
+
+    Parameters
+    ----------
+    start : str
+        ``low`` (default, the paper's Bi-PQN algorithm): solve the low-fidelity LCP
+        from ``x0`` first, with no high-fidelity product, then take the first
+        high MVP at its answer, which also gives a free secant pair and the
+        first model check. ``high``: the previous start, ``A x0`` first and a
+        first subproblem solved to ``warm_rtol``. Pairs carried in with
+        ``state=`` seed only the Mono-PQN model of fallback steps.
+    inner_rtol : float
+        Largest relative tolerance of a subproblem: it is solved until its
+        residual ``||min(z, B(z - x) + g)||`` falls below ``eta`` times its value
+        at ``z = x`` (the outer residual), ``eta = min(inner_rtol, forcing *
+        rate)``, ``rate`` the smaller of the model's measured error and the last
+        ratio of outer residuals (an Eisenstat-Walker forcing term; see
+        ``lcpbench.toolkit.pqn_levels.forcing_term``). An accurate model is so
+        solved to its accuracy, a poor one is not over-solved.
+    forcing : float
+        Safety factor of the forcing term (default 0.5).
+    inner_max_iter : int
+        Inner iteration cap per subproblem.
+    inner_memory : int
+        Low-fidelity pairs carried across subproblems (0: all).
+    warm_rtol : float
+        Relative tolerance of the low-fidelity start (``start=low``: of the
+        low-fidelity LCP's residual at ``x0``; ``start=high``: of the first
+        subproblem). Before the first high product nothing measures the
+        model, so the start cannot follow it; the forcing term takes over at
+        the first outer step, whose tolerance the start's model check sets
+        (a tighter ``warm_rtol`` pays off only for a very accurate low:
+        docs/benchmarks.md, "PQN defaults: the measurements behind them").
+    warm_max_iter : int
+        Iteration cap of the low-fidelity start.
+    model_tol : float
+        The model check: after every high MVP the high gradient is known, and
+        ``||(A - B) p|| / ||A p||`` (``info['model_errors']``) says how well the
+        model predicted it. Above ``model_tol`` the low fidelity is judged
+        useless and the solve finishes as Mono-PQN on the high-fidelity pairs
+        gathered so far (``info['abandoned_low']``; ``info['decisions']`` lists
+        every step's choice), so a useless ``A_low`` costs about its start.
+        Default 0.5: between what the shipped useful lows measure and what
+        useless ones do (docs/benchmarks.md, "PQN defaults: the measurements
+        behind them").
+    max_fallbacks : int
+        After this many consecutive Mono-PQN fallbacks (a subproblem answer
+        that does not descend) the low-fidelity model is abandoned likewise;
+        0 never abandons it on that ground.
+    """
 
     start: Literal["low", "high"] = "low"
     inner_rtol: Annotated[float, Bounds(gt=0, lt=1)] = 0.1
@@ -152,14 +229,20 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
-def product_and_step(apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray):
+def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
     """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
 
-    Returns ``(Qp, z_new, G_new, eta)``; ``z_new`` is None when the quadratic is
-    unbounded along ``p``.
+    Returns ``((Qp, z_new, G_new, eta), "", None)``, or None with the reason the
+    level ends there: ``stationary`` (no direction ``p``) or ``unbounded`` with
+    the ray ``(p, Qp)``.
     """
+    if p is None:
+        return None, "stationary", None
     Qp = apply(p)
-    return (Qp, *optimal_step(z, G, p, Qp))
+    z_new, G_new, eta = optimal_step(z, G, p, Qp)
+    if z_new is None:
+        return None, "unbounded", (p, Qp)
+    return (Qp, z_new, G_new, eta), "", None
 
 
 def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.ndarray,
@@ -201,275 +284,67 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
                              gamma=opts.gamma)
         if seed is not None and len(seed):
             model.set_pairs(seed.S, seed.Y)
-    it = 0
-    reason, ray = "max_iter", None
-    while True:
-        if not checked and stop(z, G):
-            reason = "stop"
-            break
-        checked = False
-        if it >= max_iter:
-            break
-        p = pqn_direction(model, z, G, opts, counters)
-        if p is None:
-            reason = "stationary"
-            break
-        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
-        if z_new is None:
-            reason, ray = "unbounded", (p, Qp)
-            break
-        it += 1
+    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
+
+    def update(p: np.ndarray, Qp: np.ndarray, eta: float) -> None:
         if not model.add_pair(eta * p, eta * Qp):
             counters.skipped_pairs += 1
-        z, G = z_new, G_new
-        if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
-            G = exact_gradient(z)
-            counters.recomputes += 1
+
+    z, G, reason, it, ray = iterate_level(task, z, G, lambda zz, GG: pqn_direction(
+        model, zz, GG, opts, counters), update, checked=checked)
     return LevelOutcome(z, G, reason, it, ModelPairs(model), ray)
 
 
-def _rebuild(base: Callable, n: int, pairs: Pairs) -> OperatorBFGS:
-    """``B = base + U U' - V V'`` from pairs with cached base products (no product)."""
-    model = OperatorBFGS(base, n)
-    for s, y, b0s in zip(pairs.S, pairs.Y, pairs.B0S):
-        model.update(s, y, b0s + model.correction(s))
-    return model
+HANDOFF = "handoff"     # a direction rule's answer: finish the level as Mono-PQN
 
 
-def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarray,
-             G: np.ndarray, stop: Callable[[np.ndarray, np.ndarray], bool], max_iter: int,
-             opts: BiOptions, counters: Counters, *, state: Optional[dict] = None,
-             warm_start: bool = True,
-             exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-             floor: float = 0.0, model_error: Optional[float] = None,
-             prev_residual: Optional[float] = None, adaptive: bool = True,
-             fallback_seed: Optional[Pairs] = None) -> tuple[LevelOutcome, dict]:
-    """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
+def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Callable,
+             update: Callable, checked: bool = False):
+    """The loop every level runs: stop test, cap, ``direction(z, G)``, one product, step,
+    ``update(p, Qp, eta)``, and the periodic exact gradient against the recurrence's drift.
 
-    Each outer iteration solves the paper's PQN subproblem,
-    ``min_{z>=0} 1/2 (z - x)' B (z - x) + g'(z - x)`` with ``B = lows[0] + U U' - V V'``,
-    whose gradient ``B (z - x) + g`` is free at ``z = x``; every inner
-    iteration costs one product with ``lows[0]`` plus ``O(n r)``. The inner
-    level is Mono-PQN seeded with the carried low-fidelity pairs (or, for a
-    longer chain, Bi-PQN with ``lows[1]``). ``B p`` comes from the inner
-    gradients (``G_inner_end - g``), so the high-fidelity BFGS update needs no
-    extra low-fidelity product. The carried pairs are corrected with
-    ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem Secant Conditions").
-
-    Inner accuracy: the subproblem is solved until its residual is below
-    ``max(eta r, floor)``, ``r`` the outer residual at ``x`` and ``eta`` the
-    forcing term of :func:`forcing_term` (``inner_rtol`` while nothing is
-    measured yet, or ``warm_rtol`` with ``warm_start``).
-
-    Model check (no extra high-fidelity product): after each step the new
-    high-fidelity gradient ``g + eta A p`` is known, and the model predicted
-    ``g + eta B p``; ``||(A - B) p|| / ||A p||`` (:func:`model_check`, listed
-    in ``counters.model_errors``) feeds the forcing term, and once it exceeds
-    ``model_tol`` the model is judged useless: the level finishes as Mono-PQN
-    on the high-fidelity pairs gathered so far, spending no more low
-    products (``counters.decisions`` ends with ``mono:model``).
-
-    Fallback: when the subproblem's answer ``p`` does not descend
-    (``g'p >= 0``), the model is not positive along it (``p'Bp <= 0``), or the
-    inner model is unbounded (an indefinite ``lows[0]``), a Mono-PQN step with
-    the diagonal BFGS model of the high-fidelity pairs is taken instead
-    (counted in ``mono_fallbacks``, decision ``fallback``); its ``lows[0] p``
-    costs one extra low-fidelity product so the model can still be updated.
-    After ``max_fallbacks`` in a row the level finishes as Mono-PQN
-    (``mono:subproblem``).
-
-    ``fallback_seed``: older pairs of ``Q`` (e.g. a previous time step's,
-    only approximately ``Q s``) that start the Mono-PQN model of the
-    fallback steps and of an abandoned low model; they stay out of ``B``,
-    which they would make less accurate than ``lows[0]`` alone for a good
-    low fidelity, and where each would cost a product with ``lows[0]``.
-
-    Warm start (``warm_start=True``, the old start kept as ``start=high``):
-    the first subproblem is solved to ``warm_rtol``. The paper's start is
-    :func:`low_start`, whose answer comes in through ``state``.
-
-    Returns
-    -------
-    outcome : LevelOutcome
-        With the high-fidelity pairs (``S``, ``Q S``, ``lows[0] S``).
-    state : dict
-        ``{"pairs": Pairs, "inner": Pairs|dict}`` to continue later.
+    ``direction`` returns the search direction, None (no descent direction:
+    ``stationary``) or ``HANDOFF`` (the caller finishes otherwise). Returns
+    ``(z, G, reason, iterations, ray)``.
     """
-    n = z.shape[0]
-    base = lows[0]
-    state = state or {}
-    hi_pairs: Pairs = state.get("pairs") or Pairs()
-    diag = DiagonalBFGS(n, memory=opts.memory or None, scaling=opts.scaling, gamma=opts.gamma)
-    older = fallback_seed or Pairs()
-    diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
-    inner_state = state.get("inner")
-    if model_error is not None and model_error > opts.model_tol:
-        # judged useless before the first step: no low product to rebuild the model
-        counters.decisions.append("mono:model")
-        return _as_mono(apply, z, G, stop, max_iter, 0, opts, counters, diag, exact_gradient,
-                        hi_pairs, inner_state, None)
-    hi_pairs = Pairs(list(hi_pairs.S), list(hi_pairs.Y), [
-        b if b is not None else base(s) for s, b in zip(hi_pairs.S, hi_pairs.B0S)])
-    model = _rebuild(base, n, hi_pairs)
-    if state.get("model") is not None:  # our pairs were corrected by the caller: so is B
-        inner_state = _carry(inner_state, _delta(state["model"], model), opts)
-    first = warm_start
-    it = streak = 0
+    opts, it = task.opts, 0
     reason, ray = "max_iter", None
-    rho = model_error
-    r_prev = prev_residual
     while True:
-        if stop(z, G):
+        if not checked and task.stop(z, G):
             reason = "stop"
             break
-        if it >= max_iter:
+        checked = False
+        if it >= task.max_iter:
             break
-        poor = rho is not None and rho > opts.model_tol
-        if poor or (opts.max_fallbacks and streak >= opts.max_fallbacks):
-            counters.decisions.append("mono:model" if poor else "mono:subproblem")
-            return _as_mono(apply, z, G, stop, max_iter, it, opts, counters, diag,
-                            exact_gradient, hi_pairs, inner_state, model, checked=True)
-        r0 = kkt_abs(z, G)
-        if first:
-            eta_f, cap = opts.warm_rtol, opts.warm_max_iter
-        else:
-            rate = min(x for x in (rho, r0 / r_prev if r_prev else None, np.inf)
-                       if x is not None)
-            eta_f, cap = forcing_term(rate if adaptive else None, opts), opts.inner_max_iter
-            counters.forcing.append(eta_f)
-        first = False
-        r_prev = r0
-        tol_in = max(eta_f * r0, floor)
-
-        def B(v, _m=model):
-            return base(v) + _m.correction(v)
-
-        def inner_stop(zz, GG, _t=tol_in):
-            return kkt_abs(zz, GG) <= _t
-
-        with np.errstate(over="ignore", invalid="ignore"):
-            inner, inner_state_new = _solve_sub(B, lows, z, G, inner_stop, cap, opts,
-                                                counters, inner_state)
-        counters.inner_iterations += inner.iterations
-        p = inner.z - z
-        Bp = inner.G - G
-        ok = inner.reason != "unbounded" and inner.iterations > 0 and \
-            bool(np.all(np.isfinite(inner.z))) and float(G @ p) < 0.0 and float(p @ Bp) > 0.0
-        streak = 0 if ok else streak + 1
-        if not ok:
-            counters.mono_fallbacks += 1
-            counters.decisions.append("fallback")
-            p = pqn_direction(diag, z, G, opts, counters)
-            if p is None:
-                reason = "stationary"
-                break
-            Bp = None
-        else:
-            counters.decisions.append("model")
-        Qp, z_new, G_new, eta = product_and_step(apply, z, G, p)
-        if z_new is None:
-            reason, ray = "unbounded", (p, Qp)
+        p = direction(z, G)
+        if isinstance(p, str):
+            reason = p
             break
+        step, end, ray = _step_along(task.apply, z, G, p)
+        if step is None:
+            reason = end
+            break
+        Qp, z, G, eta = step
         it += 1
-        s, y = eta * p, eta * Qp
-        corr = model.correction(p)
-        b0p = base(p) if Bp is None else Bp - corr
-        Bs = eta * (b0p + corr)
-        # the model check: the new high gradient is known; how well did B predict it?
-        rho = model_check(Qp, b0p + corr)
-        counters.model_errors.append(rho)
-        old_model = model
-        model = _copy_model(model)
-        uv = model.update(s, y, Bs)
-        if uv is None:
-            counters.skipped_pairs += 1
-        else:
-            hi_pairs.add(s, y, eta * b0p)
-        diag.add_pair(s, y)
-        delta: Optional[Callable[[np.ndarray], np.ndarray]] = None if uv is None else Rank2(*uv)
-        if opts.memory and len(hi_pairs) > opts.memory:
-            hi_pairs.trim(opts.memory)
-            model = _rebuild(base, n, hi_pairs)
-            delta = _delta(old_model, model)
-        # carry the subproblem's pairs to the next subproblem: Y <- Y + (B_new - B_old) S
-        inner_state = _carry(inner_state_new, delta, opts)
-        z, G = z_new, G_new
-        if exact_gradient is not None and opts.recompute_every and it % opts.recompute_every == 0:
-            G = exact_gradient(z)
-            counters.recomputes += 1
-    return (LevelOutcome(z, G, reason, it, hi_pairs, ray),
-            {"pairs": hi_pairs, "inner": inner_state, "model": model})
+        update(p, Qp, eta)
+        if task.exact_gradient is not None and opts.recompute_every and \
+                it % opts.recompute_every == 0:
+            G = task.exact_gradient(z)
+            task.counters.recomputes += 1
+    return z, G, reason, it, ray
 
 
-def _as_mono(apply: Callable, z: np.ndarray, G: np.ndarray, stop: Callable, max_iter: int,
-             it: int, opts: BiOptions, counters: Counters, diag: DiagonalBFGS,
-             exact_gradient: Optional[Callable], hi_pairs: Pairs, inner_state, model,
-             checked: bool = False) -> tuple[LevelOutcome, dict]:
-    """Finish a Bi-PQN level as Mono-PQN on the high-fidelity pairs gathered so far.
+@dataclass
+class LevelTask:
+    """What a level is asked: minimise the quadratic with Hessian product ``apply``
+    until ``stop(z, G)`` holds or ``max_iter`` iterations are spent."""
 
-    The outcome carries Mono-PQN's final pairs (what the model knows at the
-    end, for a later solve's memory); the state keeps the Bi-PQN pairs.
-    """
-    counters.abandoned_low = True
-    out = mono_level(apply, z, G, stop, max_iter - it, opts, counters,
-                     seed=Pairs(list(diag.S), list(diag.Y)),
-                     exact_gradient=exact_gradient, checked=checked)
-    counters.mono_fallbacks += out.iterations
-    return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs, out.ray),
-            {"pairs": hi_pairs, "inner": inner_state, "model": model})
-
-
-def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
-              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float):
-    """The paper's initialisation (Bi-PQN algorithm, line 1): the low-fidelity LCP first.
-
-    ``min_{z>=0} 1/2 z' L z + b'z`` with ``L = lows[0]`` is solved from ``z``
-    (Mono-PQN, or Bi-PQN on ``lows[1:]`` for a chain) to ``warm_rtol`` times
-    its residual at ``z``, with no high-fidelity product; its gradient at
-    ``z`` costs one low product (none at ``z = 0``). Then the first
-    high-fidelity MVP gives ``A z1`` at its answer ``z1``, which makes
-    ``(z1 - 0, A z1 - A 0)`` a free secant pair (``L z1`` is known from the
-    low solve's gradient) and measures the model's error along ``z1``
-    (:func:`model_check`) before any outer step.
-
-    Returns
-    -------
-    z1, G1 : ndarray
-        The start of the outer iteration and ``A z1 + b``.
-    state : dict or None
-        ``bi_level``'s state: the free pair and the low solve's pairs (None
-        when the low solve broke down; then ``z1`` is the given ``z``).
-    model_error : float or None
-        ``||(A - L) z1|| / ||A z1||``.
-    residual : float or None
-        The low problem's residual at ``z``, the stand-in for the outer
-        residual before the first high product (for the forcing term).
-    """
-    L = lows[0]
-    Gl = L(z) + b
-    r_low = kkt_abs(z, Gl)
-    tol = max(opts.warm_rtol * r_low, floor)
-
-    def stop(zz, GG):
-        return kkt_abs(zz, GG) <= tol
-
-    with np.errstate(over="ignore", invalid="ignore"):
-        out, inner_state = _solve_sub(L, lows, z, Gl, stop, opts.warm_max_iter, opts, counters,
-                                      None)
-    counters.inner_iterations += out.iterations
-    if out.reason == "unbounded" or not (np.all(np.isfinite(out.z))
-                                         and np.all(np.isfinite(out.G))):
-        counters.decisions.append("start:x0")
-        return z, exact_gradient(z), None, None, None
-    z1 = out.z
-    G1 = exact_gradient(z1)
-    Az, Lz = G1 - b, out.G - b
-    rho = model_check(Az, Lz)
-    counters.model_errors.append(rho)
-    counters.decisions.append("start:low")
-    state = {"pairs": Pairs([z1], [Az], [Lz]) if np.any(z1) else Pairs(),
-             "inner": inner_state, "model": OperatorBFGS(L, z.shape[0])}
-    return z1, G1, state, rho, r_low
+    apply: Callable
+    stop: Callable
+    max_iter: int
+    opts: BiOptions
+    counters: Counters
+    exact_gradient: Optional[Callable] = None
 
 
 def model_check(Qp: np.ndarray, Bp: np.ndarray) -> float:
@@ -494,44 +369,3 @@ def forcing_term(rate: Optional[float], opts: BiOptions) -> float:
     if rate is None or not np.isfinite(rate):
         return opts.inner_rtol
     return float(min(opts.inner_rtol, opts.forcing * rate))
-
-
-def _solve_sub(B: Callable, lows: list, z: np.ndarray, G: np.ndarray, stop: Callable,
-               cap: int, opts: BiOptions, counters: Counters, inner_state):
-    """The paper's PQN subproblem, solved by the next level down (Mono-PQN or Bi-PQN)."""
-    if len(lows) == 1:
-        inner = mono_level(B, z, G, stop, cap, opts, counters,
-                           seed=inner_state if isinstance(inner_state, Pairs) else None,
-                           memory=opts.inner_memory)
-        return inner, inner.pairs
-    return bi_level(B, lows[1:], z, G, stop, cap, opts, counters,
-                    state=inner_state if isinstance(inner_state, dict) else None,
-                    warm_start=False, adaptive=False)
-
-
-def _copy_model(model: OperatorBFGS) -> OperatorBFGS:
-    new = OperatorBFGS(model.apply_B0, model.n, model.curvature_tol)
-    new.U, new.V, new.skipped = model.U, model.V, model.skipped
-    return new
-
-
-def _delta(old: OperatorBFGS, new: OperatorBFGS) -> Callable[[np.ndarray], np.ndarray]:
-    """``v -> (B_new - B_old) v`` for two corrections of the same base (``O(n r)``)."""
-    return lambda v: new.correction(v) - old.correction(v)
-
-
-def _carry(inner_state, delta: Optional[Callable], opts: BiOptions):
-    """Correct an inner level's pairs (and, down a chain, its own pairs) for a model change.
-
-    ``delta`` None: the model did not change (a skipped update).
-    """
-    if isinstance(inner_state, Pairs):
-        out = inner_state if delta is None else inner_state.corrected(delta)
-        out.trim(opts.inner_memory)
-        return out
-    if isinstance(inner_state, dict) and delta is not None:
-        # the inner level's Hessian is this level's B: its high pairs see the change;
-        # its base (a lower fidelity) and its own inner pairs are unaffected.
-        return {"pairs": inner_state["pairs"].corrected(delta), "inner": inner_state["inner"],
-                "model": inner_state["model"]}
-    return inner_state

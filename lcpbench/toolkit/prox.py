@@ -176,9 +176,9 @@ def row_products(W: np.ndarray, vectors) -> np.ndarray:
     """``[W v_1, ..., W v_k]`` (shape ``(m, k)``) reading ``W`` once.
 
     Matrix-vector products over blocks of :data:`_BLOCK` columns, so each block of
-    ``W`` is still in cache for the next vector: 1.7x faster than ``k`` separate
-    products for four vectors at ``n = 10^6`` (BLAS runs the equivalent ``(m, n) x
-    (n, k)`` product slower still for small ``k``).
+    ``W`` is still in cache for the next vector: faster than ``k`` separate products,
+    and than BLAS's equivalent ``(m, n) x (n, k)`` product for small ``k``
+    (docs/benchmarks.md, "PQN work outside products").
     """
     out = np.zeros((W.shape[0], len(vectors)))
     for j in range(0, W.shape[1], _BLOCK):

@@ -409,11 +409,6 @@ class DiagonalBFGS:
         d, W, P, N, _ = self.compact()
         return d, W.T @ P, W.T @ N
 
-    def apply_B(self, v: np.ndarray) -> np.ndarray:
-        d, W, P, N, _ = self.compact()
-        Wv = W @ v
-        return d * v + W.T @ (P @ (P.T @ Wv) - N @ (N.T @ Wv))
-
     def apply_H(self, g: np.ndarray) -> np.ndarray:
         """``H g = B^-1 g`` by the two-loop recursion with ``H0 = I / d`` (two passes, O(n r))."""
         g = np.asarray(g, dtype=np.float64)
