@@ -2,10 +2,9 @@
 no module over 600 lines, no function body over 80 lines (docstring excluded) and no
 function with more than 8 positional parameters outside numba kernels.
 
-Files outside ``problems/suspension/`` and the online workflows that still offend are
-listed in the EXEMPT tables below, each with what is left; nothing under
-``problems/suspension/`` nor ``lcpbench/workflows/simulate.py`` / ``generate.py`` may be
-listed.  An entry that no longer offends fails the test, so the tables only shrink.
+The EXEMPT tables below are empty: a new offender must be fixed, not listed (nothing under
+``problems/suspension/`` nor ``lcpbench/workflows/simulate.py`` / ``generate.py`` may ever be
+listed). An entry that no longer offends fails the test, so the tables only shrink.
 """
 
 from __future__ import annotations
@@ -29,20 +28,11 @@ MAX_POSITIONAL = 8
 NEVER_EXEMPT = ("problems/suspension/", "lcpbench/workflows/simulate.py",
                 "lcpbench/workflows/generate.py")
 
-# What is left of issue 30 outside this file set (other helpers' files at the time of
-# writing); remove an entry when its function is shortened.
 #: Functions whose body is longer than MAX_BODY_LINES: "path::qualified name".
-EXEMPT_LONG = {
-    "lcpbench/toolkit/pqn_levels.py::bi_level",       # Bi-PQN level options (issue 30)
-    "solvers/dense.py::lemke",                        # Lemke's pivoting loop
-}
+EXEMPT_LONG: set = set()
 
 #: Functions with more than MAX_POSITIONAL positional parameters.
-EXEMPT_POSITIONAL = {
-    "lcpbench/toolkit/pqn_levels.py::_as_mono",       # Bi-PQN level options (issue 30)
-    "lcpbench/toolkit/pqn_levels.py::_solve_sub",     # Bi-PQN level options (issue 30)
-    "solvers/minmap.py::_line_search",                # a search state object
-}
+EXEMPT_POSITIONAL: set = set()
 
 #: Modules longer than MAX_MODULE_LINES.
 EXEMPT_MODULES: set = set()
