@@ -79,7 +79,7 @@ def _check_solver(spec: str, lows: Sequence[str], scene_spec: str):
     name, raw = parse_spec(spec)
     info = get_solver(name)
     params = make_params(name, info.params, raw)
-    missing = [n for n in requested_lows(dataclasses.asdict(params)) if n not in lows]
+    missing = [n for n in requested_lows(dataclasses.asdict(params), name) if n not in lows]
     if lows and missing:
         raise ValueError(f"solver {spec!r}: no low fidelity {missing[0]!r} in scene "
                          f"{scene_spec!r} (it has: {', '.join(lows)})")
@@ -331,7 +331,7 @@ def _lows_for(spec: str, info, scene_lows: Sequence[str]) -> tuple:
     if not info.multifidelity:
         return ()
     name, raw = parse_spec(spec)
-    named = requested_lows(dataclasses.asdict(make_params(name, info.params, raw)))
+    named = requested_lows(dataclasses.asdict(make_params(name, info.params, raw)), name)
     return tuple(named) if named else tuple(scene_lows)
 
 
