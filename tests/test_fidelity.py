@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from lcpbench import LCP, Operator
+from lcpbench.problems.suspension.scene import LATTICE_AXES
 from lcpbench.report.fidelity import cottle_heatmap_svg, fidelity_section, heatmap_svg, heatmaps
 from lcpbench.sets import SetWriter
 from lcpbench.workflows.cottle import cottle_bounds, cottle_c
-from lcpbench.workflows.fidelity import TABLE_COLUMNS, fidelity_table, stored_set_specs
+from lcpbench.workflows.fidelity import fidelity_table, stored_set_specs, table_columns
 
 N = 20
 # Diagonal positive high-fidelity matrices: c(A) = min_i A_ii exactly.
@@ -43,6 +44,7 @@ def stored_set(tmp_path_factory):
     rng = np.random.default_rng(7)
     with SetWriter(path, title="fidelity test", description="diagonal A, known errors",
                    generator="tests/test_fidelity.py") as w:
+        w.file.attrs["scene"] = "lattice:m=2,model=bim"     # whose knobs span the grid
         for k, d in enumerate(DIAGS):
             A = np.diag(d)
             low = {name: (A + _perturbation(rng, N, errs[k]), ratios[k], knobs)
@@ -58,7 +60,8 @@ def table(stored_set):
 
 # ---------------------------------------------------------------------- table
 def test_table_columns_match_hand_computed_values(table) -> None:
-    assert list(table.columns) == TABLE_COLUMNS
+    assert list(table.columns) == table_columns(LATTICE_AXES)
+    assert table.attrs["axes"] == LATTICE_AXES
     assert len(table) == len(LOWS)
     for name, (knobs, errs, ratios) in LOWS.items():
         row = table[table["fidelity"] == name].iloc[0]
@@ -241,3 +244,65 @@ def test_cottle_c_restores_blas_threads() -> None:
     cottle_c(np.diag([2.0, 1.0, 3.0]) + 0.1)
     assert [lib["num_threads"] for lib in threadpool_info()
             if lib["user_api"] == "blas"] == before
+
+
+def _knob_set(path, scene, lows):
+    """A one-instance set whose lows carry the given knobs, from scene ``scene``."""
+    rng = np.random.default_rng(3)
+    A = np.diag(DIAGS[0])
+    with SetWriter(path, title="t", description="d", generator="tests") as w:
+        if scene:
+            w.file.attrs["scene"] = scene
+        w.write_instance("0", A, rng.standard_normal(N),
+                         low={name: (A + _perturbation(rng, N, 0.1 * (k + 1)), 0.1, knobs)
+                              for k, (name, knobs) in enumerate(lows.items())})
+    return path
+
+
+def test_the_grid_is_spanned_by_the_knobs_the_scene_declares(tmp_path, monkeypatch) -> None:
+    """The framework names no knob: a scene that declares other axes gets its own grid,
+    labelled with its knob names, and a set without a known scene gets no grid at all."""
+    import dataclasses
+
+    from lcpbench.core import registry
+    from lcpbench.core.registry import register_scene
+    from lcpbench.core.scene import FidelityAxes
+
+    # registered for this test only: the registry is restored afterwards
+    monkeypatch.setattr(registry, "_SCENES", dict(registry.scenes()))
+
+    axes = FidelityAxes(rows="levels", columns="tol", model_knob="kind",
+                        grid_models=("multigrid",))
+
+    @dataclasses.dataclass(frozen=True)
+    class _Params:
+        """Parameters.
+
+        Parameters
+        ----------
+        low : tuple
+            Lows.
+        """
+
+        low: tuple = ()
+
+    @register_scene("test-knob-scene", _Params)
+    def _make(p):
+        """A scene that only declares its fidelity axes."""
+        return type("S", (), {"fidelity_axes": axes})()
+
+    lows = {"mg2": {"levels": 2, "tol": 1e-3, "kind": "multigrid"},
+            "mg3": {"levels": 3, "tol": 1e-3, "kind": "multigrid"},
+            "mg3t": {"levels": 3, "tol": 1e-6, "kind": "multigrid"},
+            "jac": {"levels": 1, "tol": 1e-3, "kind": "jacobi"}}
+    t = fidelity_table(_knob_set(tmp_path / "k.h5", "test-knob-scene:low=[]", lows))
+    assert list(t.columns) == table_columns(axes)
+    assert t.set_index("fidelity").loc["mg3t", "tol"] == 1e-6
+    svg = heatmap_svg(t)
+    assert ">levels<" in svg and ">tol<" in svg and ">eps_gmres<" not in svg
+    out = heatmaps(t)
+    assert "(levels, tol) grid" in out and "jac" in out.split("</svg>")[1]
+
+    bare = fidelity_table(_knob_set(tmp_path / "b.h5", "", lows))
+    assert list(bare.columns) == table_columns(None) and "levels" not in bare.columns
+    assert heatmap_svg(bare) == "" and "mg2" in heatmaps(bare)

@@ -13,65 +13,75 @@ import html
 import math
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.scene import FidelityAxes
 from lcpbench.report import plots
 from lcpbench.report.markup import html_table
-from lcpbench.workflows.fidelity import TABLE_COLUMNS, cache_entry, cached_fidelity_table
+from lcpbench.workflows.fidelity import cache_entry, cached_fidelity_table
 
-__all__ = ["GRID_MODELS", "cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
+__all__ = ["cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
 
-#: Models whose fidelity is set by the knobs (p, eps_gmres); "" = not recorded.
-GRID_MODELS = ("", "bim")
+def _axes(table: Optional[pd.DataFrame]) -> Optional[FidelityAxes]:
+    """The knobs the table's scene declared (``table.attrs["axes"]``), or None."""
+    return None if table is None else table.attrs.get("axes")
 
 
 def _on_grid(table: pd.DataFrame) -> pd.Series:
     """Rows that get a heatmap cell: both knobs, a knob-driven model, first of its cell.
 
-    ``lcpbench generate`` records the high fidelity's ``p`` and ``eps_gmres`` on other
-    models too (``rpy``, ``self``); those knobs do not set their fidelity, so such rows
-    are listed beside the heatmaps instead.
+    The scene's axes say which knobs span the grid and which models they set
+    (``grid_models``); ``lcpbench generate`` records the high fidelity's knobs on other
+    models too (an analytic one), whose fidelity they do not set, so such rows are listed
+    beside the heatmaps instead. Without axes no row is on a grid.
     """
-    mask = (table["p"].notna() & table["eps_gmres"].notna()
-            & table["model"].fillna("").astype(str).str.lower().isin(GRID_MODELS))
-    dup = table["p"].astype(str) + "/" + table["eps_gmres"].astype(str)
+    axes = _axes(table)
+    if axes is None:
+        return pd.Series(False, index=table.index)
+    rows, cols = table[axes.rows], table[axes.columns]
+    models = table[axes.model_knob].fillna("").astype(str).str.lower()
+    mask = rows.notna() & cols.notna() & models.isin(axes.grid_models)
+    dup = rows.astype(str) + "/" + cols.astype(str)
     return mask & ~(dup.where(mask).duplicated() & mask)
 
 
-def _grid(table: pd.DataFrame) -> pd.DataFrame:
-    """Rows placed on the (p, eps_gmres) heatmaps (:func:`_on_grid`)."""
-    if table is None or table.empty:
-        return pd.DataFrame(columns=TABLE_COLUMNS)
+def _grid(table: Optional[pd.DataFrame]) -> pd.DataFrame:
+    """Rows placed on the heatmaps over the scene's two knobs (:func:`_on_grid`)."""
+    if table is None or table.empty or _axes(table) is None:
+        return pd.DataFrame()
     return table[_on_grid(table)]
 
 
-def _fmt_eps(e: float) -> str:
-    exp = math.log10(e)
-    return f"1e{round(exp)}" if abs(exp - round(exp)) < 1e-9 else f"{e:.2g}"
-
-
-def _fmt_p(p: float) -> str:
-    return str(int(p)) if float(p).is_integer() else f"{p:g}"
+def _fmt_knob(v: float) -> str:
+    """A knob value as a tick label: an integer, a power of ten (``1e-6``), else 2 digits."""
+    v = float(v)
+    if v.is_integer():
+        return str(int(v))
+    exp = math.log10(abs(v)) if v else 0.0
+    return f"1e{round(exp)}" if v > 0 and abs(exp - round(exp)) < 1e-9 else f"{v:.2g}"
 
 
 def _heat(ax, grid: pd.DataFrame, column: str, title: str, cbar: str, fmt: str,
           cmap: str, fig) -> None:
-    ps = sorted(grid["p"].unique())
-    eps = sorted(grid["eps_gmres"].unique(), reverse=True)
+    axes = _axes(grid)
+    assert axes is not None                      # _grid is empty without axes
+    ps = sorted(grid[axes.rows].unique())
+    eps = sorted(grid[axes.columns].unique(), reverse=True)
     M = np.full((len(ps), len(eps)), np.nan)
     for _, r in grid.iterrows():
-        M[ps.index(r["p"]), eps.index(r["eps_gmres"])] = r[column]
+        M[ps.index(r[axes.rows]), eps.index(r[axes.columns])] = r[column]
     shown = np.ma.masked_invalid(np.where(np.isfinite(M), M, np.nan))
     im = ax.imshow(shown, origin="lower", aspect="auto", cmap=cmap)
     fig.colorbar(im, ax=ax, label=cbar)
     ax.set_xticks(range(len(eps)))
-    ax.set_xticklabels([_fmt_eps(e) for e in eps])
+    ax.set_xticklabels([_fmt_knob(e) for e in eps])
     ax.set_yticks(range(len(ps)))
-    ax.set_yticklabels([_fmt_p(p) for p in ps])
-    ax.set_xlabel("eps_gmres")
-    ax.set_ylabel("p")
+    ax.set_yticklabels([_fmt_knob(p) for p in ps])
+    ax.set_xlabel(axes.columns)
+    ax.set_ylabel(axes.rows)
     ax.set_title(title)
     finite = M[np.isfinite(M)]
     mid = float(np.mean([finite.min(), finite.max()])) if finite.size else 0.0
@@ -84,16 +94,17 @@ def _heat(ax, grid: pd.DataFrame, column: str, title: str, cbar: str, fmt: str,
 
 
 def heatmap_svg(table: pd.DataFrame) -> str:
-    """The paper's two heatmaps over ``(p, eps_gmres)`` as one SVG string.
+    """The paper's two heatmaps over the scene's two knobs (``(p, eps_gmres)``) as one SVG.
 
     Left: log10 of the max ``||A_low - A||_inf``; right: median low MVPs per high MVP.
-    Cells: fidelities with both knobs whose model is one of ``GRID_MODELS``. Returns
+    Cells: fidelities with both knobs whose model is one the knobs set (the scene's
+    ``FidelityAxes.grid_models``). Returns
     ``""`` when there is none.
     """
     grid = _grid(table)
     if grid.empty:
         return ""
-    ncol = grid["eps_gmres"].nunique()
+    ncol = grid[_axes(grid).columns].nunique()  # type: ignore[union-attr]
     fig, axes = plots.figure(max(8.0, 2 * (2.5 + 0.7 * ncol)), 3.6, ncols=2)
     _heat(axes[0, 0], grid, "log10_max_err", "log10 max ||A_low - A||_inf",
           "log10 error", ".2f", "viridis", fig)
@@ -108,7 +119,7 @@ def cottle_heatmap_svg(table: pd.DataFrame) -> str:
     if grid.empty:
         return ""
     grid["pct"] = 100.0 * grid["share_err_below_c"]
-    ncol = grid["eps_gmres"].nunique()
+    ncol = grid[_axes(grid).columns].nunique()  # type: ignore[union-attr]
     fig, ax = plots.figure(max(4.5, 2.5 + 0.7 * ncol), 3.6)
     _heat(ax, grid, "pct", "% instances with ||A_low - A||_inf < c(A)", "%",
           ".0f", "cividis", fig)
@@ -118,8 +129,8 @@ def cottle_heatmap_svg(table: pd.DataFrame) -> str:
 def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
     """HTML: the two heatmaps (inline SVG) and a small table of the other fidelities.
 
-    Fidelities off the ``(p, eps_gmres)`` grid (another model such as ``rpy``, or a knob
-    missing; see ``GRID_MODELS``) have no cell in the heatmaps and are listed in the
+    Fidelities off the grid of the scene's two knobs (another model, or a knob missing)
+    have no cell in the heatmaps and are listed in the
     table instead. The SVG's ids get ``id_prefix`` so
     several figures can share one page.
     """
@@ -131,8 +142,10 @@ def heatmaps(table: pd.DataFrame, id_prefix: str = "fidhm_") -> str:
     if table is not None and not table.empty:
         others = table[~_on_grid(table)]
         if not others.empty:
-            parts.append("<p class='note'>Fidelities not on the (p, eps_gmres) grid (other "
-                         "models, or a knob missing):</p>")
+            axes = _axes(table)
+            grid = f"({axes.rows}, {axes.columns}) grid" if axes is not None else "grid"
+            parts.append(f"<p class='note'>Fidelities not on the {html.escape(grid)} "
+                         "(other models, or a knob missing):</p>")
             parts.append(html_table(others, digits=4))
     return "\n".join(parts)
 

@@ -12,6 +12,13 @@ Norms
     absolute row sum), the norm of Cottle's lemma, whose ``c(A)`` is defined over the
     unit sphere of the vector infinity norm.
 
+Knobs
+    Which knobs span the study's grid is the scene's word, not the framework's: a set
+    generated from a scene records the scene's spec (root attribute ``scene``), and the
+    registered scene declares its :class:`~lcpbench.core.scene.FidelityAxes` (rows,
+    columns, the knob naming the model, the models the two knobs set). A set whose scene
+    is unknown, and LCPs given directly, get a table without knob columns.
+
 Costs
     Stored sets keep ``cost_ratio = t_low / t_high`` per low fidelity and instance; the
     table reports its reciprocal ``t_high / t_low`` (low MVPs per high MVP), the median
@@ -39,14 +46,48 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.scene import FidelityAxes
 from lcpbench.workflows.cottle import cottle_c
 
-__all__ = ["TABLE_COLUMNS", "cached_fidelity_table", "fidelity_table", "stored_set_specs",
-           "user_cache_dir"]
+__all__ = ["METRIC_COLUMNS", "cached_fidelity_table", "fidelity_table", "set_axes",
+           "stored_set_specs", "table_columns", "user_cache_dir"]
 
-#: Columns of :func:`fidelity_table`, in order.
-TABLE_COLUMNS = ["fidelity", "model", "p", "eps_gmres", "instances", "log10_max_err",
-                 "median_low_per_high", "share_err_below_c", "share_err_below_lower"]
+#: The measured columns of :func:`fidelity_table`, after the name and the knobs.
+METRIC_COLUMNS = ["instances", "log10_max_err", "median_low_per_high", "share_err_below_c",
+                  "share_err_below_lower"]
+
+
+def table_columns(axes: FidelityAxes | None) -> list[str]:
+    """Columns of :func:`fidelity_table`: the name, the scene's knobs (model, rows,
+    columns of :class:`~lcpbench.core.scene.FidelityAxes`; none without axes), the metrics."""
+    knobs = [axes.model_knob, axes.rows, axes.columns] if axes is not None else []
+    return ["fidelity", *knobs, *METRIC_COLUMNS]
+
+
+def set_axes(path) -> FidelityAxes | None:
+    """The fidelity axes the scene of a stored set declares, or None.
+
+    Read from the set's root attribute ``scene`` (the spec it was generated from, e.g.
+    ``lattice:m=3,model=bim``) through the scene registry; None for a set without one,
+    or whose scene is not registered here.
+    """
+    import h5py
+
+    from lcpbench.core.registry import get_scene
+
+    try:
+        with h5py.File(path, "r") as f:
+            spec = f.attrs.get("scene")
+    except OSError:
+        return None
+    if isinstance(spec, bytes):
+        spec = spec.decode()
+    if not isinstance(spec, str) or not spec.strip():
+        return None
+    try:
+        return get_scene(spec.split(":", 1)[0].strip()).fidelity_axes()
+    except (KeyError, AttributeError, TypeError, ValueError):
+        return None
 
 
 
@@ -115,7 +156,8 @@ def _c_values(matrices: list[np.ndarray], jobs: int,
 
 def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
                    c_values: Sequence[float] | None = None, jobs: int = 1,
-                   progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                   progress: Callable[[str], None] | None = None,
+                   axes: FidelityAxes | None = None) -> pd.DataFrame:
     """One row per low fidelity of a stored set: error, cost and the Cottle condition.
 
     Parameters
@@ -132,12 +174,14 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
         Worker processes for the ``c(A)`` estimates (1: in this process).
     progress : callable, optional
         Called with a line of text after each instance's ``c(A)``.
+    axes : FidelityAxes, optional
+        The knobs to tabulate; default the set's scene's (:func:`set_axes`), none for LCPs.
 
     Returns
     -------
     DataFrame
-        Columns :data:`TABLE_COLUMNS`: ``fidelity`` (name), ``model``, ``p``,
-        ``eps_gmres`` (knob attrs, NaN when absent), ``instances`` (how many instances
+        Columns :func:`table_columns` of the axes: ``fidelity`` (name), the scene's model
+        knob and its two grid knobs (the low attrs; NaN when absent), ``instances`` (how many instances
         have this fidelity), ``log10_max_err`` (log10 of the max over instances of
         ``||A_low - A||_inf``, the induced infinity norm), ``median_low_per_high``
         (median over instances of ``t_high / t_low = 1 / cost_ratio``) and
@@ -146,8 +190,11 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
         may count an instance whose true ``c(A)`` is slightly smaller) and
         ``share_err_below_lower`` (the same with the rigorous lower bound
         ``lambda_min(sym A) / n`` of ``c(A)``: instances certainly inside the lemma's
-        neighbourhood). Sorted by model, p, eps_gmres (largest first), name.
+        neighbourhood). Sorted by model, row knob, column knob (largest first), name.
+        ``table.attrs["axes"]`` holds the axes (None without).
     """
+    if axes is None and isinstance(path_or_lcps, (str, Path)):
+        axes = set_axes(path_or_lcps)
     rows: dict[str, dict] = {}
     pairs = list(_iter_instances(path_or_lcps, instances))
     if not pairs:
@@ -183,18 +230,29 @@ def fidelity_table(path_or_lcps, *, instances: Sequence[str] | None = None,
         with np.errstate(divide="ignore"):
             log_err = float(np.log10(max_err)) if max_err > 0 else -math.inf
         ratios = np.asarray(r["ratios"], dtype=float)
-        out.append({"fidelity": name, "model": str(la.get("model", "")),
-                    "p": _knob(la.get("p")), "eps_gmres": _knob(la.get("eps_gmres")),
+        knobs = ({axes.model_knob: str(la.get(axes.model_knob, "")),
+                  axes.rows: _knob(la.get(axes.rows)),
+                  axes.columns: _knob(la.get(axes.columns))} if axes is not None else {})
+        out.append({"fidelity": name, **knobs,
                     "instances": len(r["errs"]), "log10_max_err": log_err,
                     "median_low_per_high": float(np.median(1.0 / ratios)),
                     "share_err_below_c": float(np.mean(r["below"])),
                     "share_err_below_lower": float(np.mean(r["sure"]))})
-    df = pd.DataFrame(out, columns=TABLE_COLUMNS)
-    if df.empty:
-        return df
-    df["_eps"] = -df["eps_gmres"]
-    df = df.sort_values(["model", "p", "_eps", "fidelity"], na_position="last", kind="stable")
-    return df.drop(columns="_eps").reset_index(drop=True)
+    df = pd.DataFrame(out, columns=table_columns(axes))
+    if not df.empty:
+        df = _sorted(df, axes)
+    df.attrs["axes"] = axes
+    return df
+
+
+def _sorted(df: pd.DataFrame, axes: FidelityAxes | None) -> pd.DataFrame:
+    """Rows by model, row knob, column knob (largest first) and name."""
+    if axes is None:
+        return df.sort_values("fidelity", kind="stable").reset_index(drop=True)
+    df = df.assign(_col=-df[axes.columns])
+    df = df.sort_values([axes.model_knob, axes.rows, "_col", "fidelity"], na_position="last",
+                        kind="stable")
+    return df.drop(columns="_col").reset_index(drop=True)
 
 
 def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None]]:
@@ -253,7 +311,7 @@ def stored_set_specs(results: pd.DataFrame) -> list[tuple[Path, list[str] | None
 
 
 #: Bump when the table's computation changes, so old cache entries are not reused.
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 #: The study's parameters, part of the cache key (those of :func:`cottle_c`).
 STUDY_PARAMS = {"starts": 32, "random_starts": 8, "seed": 0, "norm": "inf"}
 
@@ -316,11 +374,16 @@ def cached_fidelity_table(path, instances: Sequence[str] | None = None,
     path = Path(path)
     entry = cache_entry(path, instances, cache_dir)
     if entry.exists():
+        axes = set_axes(path)
         table = pd.read_csv(entry, dtype=str, keep_default_na=False)
-        for col in TABLE_COLUMNS[2:]:
-            table[col] = pd.to_numeric(table[col], errors="coerce")
+        text = {"fidelity", axes.model_knob if axes is not None else "fidelity"}
+        for col in table.columns:
+            if col not in text:
+                table[col] = pd.to_numeric(table[col], errors="coerce")
         table["instances"] = table["instances"].astype(int)
-        return table.reindex(columns=TABLE_COLUMNS)
+        table = table.reindex(columns=table_columns(axes))
+        table.attrs["axes"] = axes
+        return table
     jobs = jobs if jobs is not None else (os.cpu_count() or 1)
     table = fidelity_table(path, instances=instances, jobs=jobs, progress=progress)
     entry.parent.mkdir(parents=True, exist_ok=True)
