@@ -506,8 +506,9 @@ def _write_step(w: SetWriter, scene, problem, k: int, job: _Job) -> None:
         ratio = t_low / t_high if t_high > 0 else 1.0
         low[key] = (A_low, ratio, {**knobs, "t_mvp": t_low, "asymmetry": asym_low})
     ref = consensus(LCP(A, lcp.b, psd_check=False))
+    size = scene.fidelity_axes.size_param          # the scene's size knob: a set attribute
     scalars = {key: v for key, v in dataclasses.asdict(P).items()
-               if isinstance(v, (bool, int, float, str)) and key not in ("low", "m")}
+               if isinstance(v, (bool, int, float, str)) and key not in ("low", size)}
     attrs = {**scalars, "step": int(k), "M": int(scene.M), "t_mvp_high": float(t_high),
              "scene": scene_spec, "asymmetry": asym, "family": parse_spec(scene_spec)[0]}
     if lcp.meta.get("min_gap") is not None:
