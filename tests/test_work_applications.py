@@ -2,6 +2,7 @@
 counted operator, the application-weighted cost in results, and the live BIM operator."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from lcpbench import LCP, Operator, solve
@@ -134,3 +135,36 @@ def test_bim_operator_reports_its_forward_and_adjoint_krylov_applications():
     assert sum(fwd) > 0 and sum(adj) > 0
     # recycling: the later products need fewer new directions than the first
     assert fwd[-1] + adj[-1] < fwd[0] + adj[0]
+
+
+def test_bim_declares_the_cold_applications_it_timed_with_a_low():
+    """With a low fidelity the costs are timed on cold products; the high operator then
+    declares the inner applications of those cold products as its cold_applications."""
+    c = np.array([[0.0, 0.0, 0.0], [2.2, 0.0, 0.0], [1.1, 1.95, 0.0]])
+    F = np.tile([[0.0, -1.0, 0.0]], (3, 1))
+    prob = build_contact_problem(c, 1.0, F, None, dt=0.1, delta=0.4, model="bim", p=3,
+                                 eps_gmres=1e-8, low=["rpy"])
+    op, mob = prob.lcp.A, prob.mobility
+    cold = op.cold_applications
+    assert cold is not None and op.declared_cost is not None
+    before = mob.work_counts()
+    with mob.cold_products():
+        apply_uncounted(op, np.linspace(3.0, 1.0, prob.lcp.n))    # not a cached vector
+    one_cold = sum(mob.work_counts().values()) - sum(before.values())
+    assert abs(cold - one_cold) <= 0.25 * one_cold
+    assert prob.lcp.low["rpy"].cold_applications == 1.0     # no hook: one per product
+
+
+def test_report_table_shows_the_median_application_cost():
+    from lcpbench.report import ranking
+    rows = []
+    for i, (e, a) in enumerate([(10, 4.0), (12, 5.0), (14, 9.0)]):
+        rows.append({"run_id": f"s/i{i}/bb-pgd", "problem": "s", "family": "s", "instance": f"i{i}",
+                     "repeat": 0, "solver": "bb-pgd", "emvps": e, "mvps": e, "solved": True,
+                     "multifidelity": False, "mvp_only": True, "time_s": 0.1,
+                     "false_convergence": False, "app_cost": a})
+    table = ranking.ranking_table(pd.DataFrame(rows), "bb-pgd").set_index("solver")
+    assert table.loc["bb-pgd", "median app. cost"] == "5"
+    old = pd.DataFrame(rows).drop(columns="app_cost")       # a store from before the column
+    assert ranking.ranking_table(old, "bb-pgd").set_index("solver").loc[
+        "bb-pgd", "median app. cost"] == "-"
