@@ -168,3 +168,14 @@ def test_report_table_shows_the_median_application_cost():
     old = pd.DataFrame(rows).drop(columns="app_cost")       # a store from before the column
     assert ranking.ranking_table(old, "bb-pgd").set_index("solver").loc[
         "bb-pgd", "median app. cost"] == "-"
+
+
+def test_online_table_shows_the_median_application_cost_of_simulate_rows():
+    from lcpbench.report import tables
+    rows = [{"run_id": f"sim/{k}", "kind": "online", "problem": "lattice:m=2", "solver": "bb-pgd",
+             "step": k, "n": 5, "sim_total_s": 1.0, "time_s": 0.5, "emvps": 7.0, "mvps": 7,
+             "max_overlap": 0.0, "solved": True, "app_cost": a, "status": "converged",
+             "multifidelity": False, "mvp_only": True}
+            for k, a in enumerate([2.0, 3.0, 6.0])]
+    t = tables.online_table(pd.DataFrame(rows), "bb-pgd")
+    assert t.loc[0, "median_app_cost"] == 3.0 and t.loc[0, "median_emvps"] == 7.0
