@@ -179,3 +179,21 @@ def test_online_table_shows_the_median_application_cost_of_simulate_rows():
             for k, a in enumerate([2.0, 3.0, 6.0])]
     t = tables.online_table(pd.DataFrame(rows), "bb-pgd")
     assert t.loc[0, "median_app_cost"] == 3.0 and t.loc[0, "median_emvps"] == 7.0
+
+
+def test_a_store_from_before_the_application_columns_keeps_its_header(tmp_path):
+    from lcpbench.run.runner import execute, plan
+    from lcpbench.run.store import RunStore
+    from lcpbench.run.sweep import Sweep
+    sweep = Sweep(solvers=["bb-pgd"], problems=["fathi:sizes=[4,6]"])
+    execute(plan(sweep), RunStore(tmp_path), quiet=True)
+    new = pd.read_csv(tmp_path / "results.csv")
+    assert (new["applications"] == new["mvps"]).all() and (new["app_cost"] == new["emvps"]).all()
+    old = new.drop(columns=["applications", "lofi_applications_total", "app_cost",
+                            "row_crc"]).iloc[:1]
+    old.to_csv(tmp_path / "results.csv", index=False)   # written before the new columns
+    store = RunStore(tmp_path)
+    assert store.corrupt == []
+    execute(plan(sweep), store, quiet=True)
+    res = pd.read_csv(tmp_path / "results.csv")
+    assert list(res.columns) == list(old.columns) and len(res) == 2
