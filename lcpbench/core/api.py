@@ -255,15 +255,22 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> S
     mvps = int(run.A.count)             # after emvps(): a cost calibration is counted too
     lofi_mvps = run.lofi_counts()
     mvp_time_s = float(sum(op.seconds for op in run.operators().values()))
+    try:
+        app_cost = float(run.app_cost())
+    except Exception:  # high_cost() already failed above: emvps is nan and the status says why
+        app_cost = float("nan")
+    work = {"applications": run.work_counts()}
     claimed = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
     verified, status, message = _verified(ctx, run, x, status, message)
     return SolveResult(
         x=x, w=res.w, status=status, message=message, mvps=mvps, lofi_mvps=lofi_mvps,
-        emvps=emvps, iterations=ctx.iterations, time_s=res.time_s, mvp_time_s=mvp_time_s,
+        emvps=emvps, applications=run.A.applications, app_cost=app_cost,
+        lofi_applications={k: op.applications for k, op in run.low.items()},
+        iterations=ctx.iterations, time_s=res.time_s, mvp_time_s=mvp_time_s,
         history=ctx.monitor.frame(), claimed_kkt_abs=claimed, verified=verified,
         solved=bool(verified["kkt_abs"] <= ctx.threshold), threshold=ctx.threshold,
         solver=info.name, params=dataclasses.asdict(params), mvp_only=info.mvp_only,
-        info={**ctx.info, **res.info}, state=res.state)
+        info={**ctx.info, **res.info, **work}, state=res.state)
 
 
 def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,

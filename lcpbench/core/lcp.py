@@ -229,6 +229,36 @@ class LCP:
             c = self.A.measured_cost
         return c
 
+    def app_cost(self) -> float:
+        """Application-weighted cost so far, in high products at their cold applications.
+
+        ``sum(applications_op * application_cost_op) / cost_high`` over the operators
+        (:meth:`Operator.application_cost`).  When every product takes its operator's
+        cold number of applications (always so for operators without a ``work`` hook)
+        this is :meth:`emvps`; with recycled Krylov directions it is smaller.  With
+        only high-fidelity products it is ``applications_high / cold_applications_high``
+        and needs no timing.  nan when a used operator's cold applications are unknown.
+        """
+        used = {k: op for k, op in self.operators().items() if op.applications}
+        if not used:
+            return 0.0
+        if set(used) == {"high"}:
+            cold = self.A.cold_applications
+            return self.A.applications / cold if cold else float("nan")
+        c_high = self.high_cost()
+        total = 0.0
+        for op in used.values():
+            per = op.application_cost()
+            if per is None:
+                return float("nan")
+            total += op.applications * per / c_high
+        return total
+
+    def work_counts(self) -> dict:
+        """Inner applications per operator and kind: ``{"high": {"forward": ..}, ..}``."""
+        return {k: dict(op.applications_by_kind) for k, op in self.operators().items()
+                if op.applications_by_kind}
+
     def lofi_counts(self) -> dict:
         """Products per low-fidelity operator."""
         return {k: int(v.count) for k, v in self.low.items()}

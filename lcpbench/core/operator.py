@@ -13,21 +13,34 @@ solver alike.
 
 The framework (never a solver) applies an operator without counting through
 :func:`apply_uncounted`, to verify answers independently.
+
+Work in inner applications (issue 28).  An MVP is the paper's unit of cost, but an
+operator that is itself an iterative solve (the boundary-integral mobility with Krylov
+recycling) does not pay the same for every product.  ``Operator(..., work=callable)``
+lets such an operator report its *inner applications* (e.g. GMRES/GCR products of the
+traction operator, forward and adjoint): the counted operator reads the callable just
+before and just after each counted product and charges the difference to that product,
+so uncounted framework products are never charged.  Without the hook a product is one
+application.  See :meth:`Operator.application_cost` for the application-weighted cost.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, Optional, Union
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
-__all__ = ["Operator", "BudgetExhausted", "OperatorError", "NonFiniteProduct", "apply_uncounted",
+#: What a ``work`` hook returns: cumulative inner applications so far, one number or one
+#: number per kind (e.g. ``{"forward": 120, "adjoint": 97}``).
+WorkCounts = Union[int, float, Mapping[str, Union[int, float]]]
+
+__all__ = ["Operator", "WorkCounts", "BudgetExhausted", "OperatorError", "NonFiniteProduct", "apply_uncounted",
            "as_operator", "measure_cost", "Accuracy", "measure_accuracy", "safe_norm"]
 
 
@@ -88,6 +101,18 @@ class Operator(LinearOperator):
         not tighten their stop test below what it allows (see
         :meth:`lcpbench.core.context.SolverContext.threshold`). None (default)
         means exact to rounding.
+    work : callable, optional
+        ``work()`` returns the cumulative inner applications the wrapped operator
+        has made so far (a number, or a mapping kind -> number such as
+        ``{"forward": ..., "adjoint": ...}``); it must only grow.  It is read
+        before and after every counted product and the difference is charged to
+        that product (:attr:`applications`, :attr:`applications_by_kind`).
+        Without it every counted product is one application (kind ``"product"``).
+    cold_applications : float, optional
+        Inner applications one product takes from a cold start (no recycled
+        information): the unit that turns applications into products.  When
+        omitted it is the applications of the first counted product that made
+        any (measured per operator copy, i.e. per solve); without ``work`` it is 1.
 
     Notes
     -----
@@ -102,14 +127,21 @@ class Operator(LinearOperator):
     _impl: Any                      # ndarray, sparse matrix or LinearOperator
     _declared_cost: Optional[float]
     _explicit: bool
+    _work: Optional[Callable[[], WorkCounts]]
+    _declared_cold: Optional[float]
 
     def __init__(self, A, shape: Optional[tuple] = None, *, cost: Optional[float] = None,
-                 name: str = "high", dtype=np.float64, rtol: Optional[float] = None):
+                 name: str = "high", dtype=np.float64, rtol: Optional[float] = None,
+                 work: Optional[Callable[[], WorkCounts]] = None,
+                 cold_applications: Optional[float] = None):
         if isinstance(A, Operator):
             impl = A._impl
             shape = A.shape
             cost = A._declared_cost if cost is None else cost
             rtol = A.rtol if rtol is None else rtol
+            work = A._work if work is None else work
+            cold_applications = (A._declared_cold if cold_applications is None
+                                 else cold_applications)
             self._explicit = A._explicit
         elif _explicit_matrix(A):
             arr = A
@@ -160,6 +192,7 @@ class Operator(LinearOperator):
                                  f"be in [0, 1), got {rtol}")
         self.rtol: Optional[float] = rtol
         self.name = name
+        self._init_work(work, cold_applications)
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
         self.count = 0
         self.seconds = 0.0
@@ -169,6 +202,59 @@ class Operator(LinearOperator):
         #: The largest machine epsilon of a product's output dtype narrower than float64
         #: (float32: 1.2e-7), 0 while every product came back in float64.
         self.output_eps = 0.0
+
+    def _init_work(self, work: Optional[Callable[[], WorkCounts]],
+                   cold: Optional[float]) -> None:
+        """Check and store the work hook and the declared cold applications; zero the tallies."""
+        if work is not None and not callable(work):
+            raise TypeError(f"operator {self.name!r}: work must be a callable returning the "
+                            f"cumulative inner applications, got {type(work).__name__}")
+        if cold is not None:
+            cold = float(cold)
+            if not (np.isfinite(cold) and cold > 0):
+                raise ValueError(f"operator {self.name!r}: cold_applications must be a positive "
+                                 f"number of inner applications per product, got {cold}")
+        self._work = work
+        self._declared_cold = cold
+        self._first_apps: Optional[float] = None
+        #: Inner applications charged to counted products, per kind.
+        self.applications_by_kind: dict[str, float] = {}
+
+    def _read_work(self) -> dict[str, float]:
+        """The hook's cumulative applications as ``{kind: number}``."""
+        assert self._work is not None
+        try:
+            got = self._work()
+        except Exception as exc:
+            raise OperatorError(f"operator {self.name!r}: its work hook raised "
+                                f"{type(exc).__name__}: {exc}") from exc
+        items = got.items() if isinstance(got, Mapping) else [("applications", got)]
+        out = {}
+        for kind, v in items:
+            v = float(v)
+            if not (np.isfinite(v) and v >= 0):
+                raise OperatorError(f"operator {self.name!r}: its work hook reported {v} "
+                                    f"{kind!r} applications; it must return non-negative "
+                                    "cumulative counts")
+            out[str(kind)] = v
+        return out
+
+    def _charge(self, before: Optional[dict[str, float]], k: int) -> None:
+        """Charge one counted product (``k`` columns): the hook's increase, or ``k``."""
+        if before is None:
+            delta = {"product": float(k)}
+        else:
+            after = self._read_work()
+            delta = {kind: after[kind] - before.get(kind, 0.0) for kind in after}
+            if any(d < 0 for d in delta.values()):
+                raise OperatorError(f"operator {self.name!r}: its work hook went down during a "
+                                    f"product ({before} -> {after}); it must return cumulative "
+                                    "counts that only grow")
+        for kind, d in delta.items():
+            self.applications_by_kind[kind] = self.applications_by_kind.get(kind, 0.0) + d
+        total = sum(delta.values())
+        if self._first_apps is None and total > 0:
+            self._first_apps = total / k
 
     # ------------------------------------------------------------------ counting
     def _apply(self, X: np.ndarray) -> np.ndarray:
@@ -180,9 +266,11 @@ class Operator(LinearOperator):
             return np.zeros(self.shape[0] if X.ndim == 1 else (self.shape[0], X.shape[1]))
         if self._guard is not None:
             self._guard(self, k)
+        before = self._read_work() if self._work is not None else None
         t0 = time.perf_counter()
         Y = _checked_apply(self, X)
         self.seconds += time.perf_counter() - t0
+        self._charge(before, k)
         self.count += k
         self.calls += 1
         if not np.all(np.isfinite(Y)) and np.all(np.isfinite(X)):
@@ -241,15 +329,48 @@ class Operator(LinearOperator):
         """Seconds per MVP: declared if given, else measured (None if unknown)."""
         return self._declared_cost if self._declared_cost is not None else self.measured_cost
 
+    # ------------------------------------------------------------------ work
+    @property
+    def has_work_hook(self) -> bool:
+        """True when the operator reports its inner applications (``work=``)."""
+        return self._work is not None
+
+    @property
+    def applications(self) -> float:
+        """Inner applications charged to counted products (= :attr:`count` without a hook)."""
+        return float(sum(self.applications_by_kind.values()))
+
+    @property
+    def cold_applications(self) -> Optional[float]:
+        """Applications of one product from a cold start: declared, else those of the first
+        counted product that made any (1 without a hook); None before any product."""
+        if self._declared_cold is not None:
+            return self._declared_cold
+        if self._work is None:
+            return 1.0
+        return self._first_apps
+
+    def application_cost(self) -> Optional[float]:
+        """Seconds per inner application: :attr:`cost` / :attr:`cold_applications`.
+
+        The application-weighted cost of a solve (``SolveResult.app_cost``) is
+        ``sum(applications_op * application_cost_op) / cost_high``: high products at
+        their cold number of applications.  When every product takes the cold
+        number of applications it equals the E-MVPs; with Krylov recycling later
+        products take fewer and it is smaller.  None when either part is unknown.
+        """
+        c, a = self.cost, self.cold_applications
+        return None if c is None or a is None else c / a
+
     def copy(self, name: Optional[str] = None) -> Operator:
-        """A new operator on the same matrix and declared cost, with zeroed counters."""
+        """A new operator on the same matrix, declared cost and work hook, with zeroed counters."""
         op = Operator(self, name=self.name if name is None else name)
         return op
 
     def __repr__(self) -> str:
         kind = type(self._impl).__name__
         return (f"<Operator {self.name!r} {self.shape[0]}x{self.shape[1]} ({kind}), "
-                f"count={self.count}, cost={self.cost}>")
+                f"count={self.count}, applications={self.applications:g}, cost={self.cost}>")
 
 
 def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:

@@ -65,6 +65,18 @@ class SolveResult:
         MVPs per low-fidelity operator.
     emvps : float
         Effective MVPs: ``sum(count * cost) / cost_high``.
+    applications : float
+        Inner applications of the high-fidelity operator charged to its counted
+        products (its ``work`` hook; equal to ``mvps`` without one).
+    lofi_applications : dict
+        The same per low-fidelity operator.
+    app_cost : float
+        Application-weighted cost: ``sum(applications_op * seconds_per_application_op)
+        / cost_high``, in high products at their cold number of applications
+        (:meth:`lcpbench.LCP.app_cost`).  Equals ``emvps`` when every product takes the
+        same (cold) number of applications; smaller when recycling makes later
+        products cheaper.  ``info["applications"]`` has the counts per operator and
+        kind (e.g. ``forward`` and ``adjoint`` Krylov applications).
     iterations : int
         Iterates reported to the monitor, minus one (the initial point).
     time_s : float
@@ -95,6 +107,9 @@ class SolveResult:
     mvps: int = 0
     lofi_mvps: dict = field(default_factory=dict)
     emvps: float = 0.0
+    applications: float = 0.0
+    lofi_applications: dict = field(default_factory=dict)
+    app_cost: float = 0.0
     iterations: int = 0
     time_s: float = 0.0
     mvp_time_s: float = 0.0
@@ -126,6 +141,7 @@ class SolveResult:
         lo = f" (+ low {lo})" if lo else ""
         return (f"{self.solver}: {self.status.value} after {self.iterations} it, "
                 f"{self.mvps} MVPs{lo}, {self.emvps:.2f} E-MVPs, "
+                f"{self.applications:g} applications ({self.app_cost:.2f} weighted), "
                 f"claimed {self.claimed_kkt_abs:.2e}, verified {self.verified_kkt_abs:.2e}, "
                 f"{'solved' if self.solved else 'NOT solved'}, {self.time_s:.3g} s")
 

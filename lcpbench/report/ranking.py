@@ -145,6 +145,16 @@ def emvp_stats(ok: pd.DataFrame, multi: bool) -> dict[str, str]:
     return out
 
 
+def app_cost_median(ok: pd.DataFrame) -> str:
+    """Median application-weighted cost of the solved runs as text (``app_cost``: inner
+    applications weighted by their cost, in high products at their cold applications);
+    ``-`` for stores written before the column existed or without solved runs."""
+    if "app_cost" not in ok.columns:
+        return "-"
+    v = pd.to_numeric(ok["app_cost"], errors="coerce").dropna()
+    return f"{float(v.median()):.3g}" if len(v) else "-"
+
+
 def _both_solved_ratio(g: pd.DataFrame, base: pd.DataFrame) -> str:
     """``median(solver) / median(baseline)`` over the instances both solved, with the count."""
     mine, theirs = _by_instance(g), _by_instance(base)
@@ -164,7 +174,8 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
     instances; ``min``, ``median``, ``mean``, ``max`` E-MVPs over the solved runs (high
     MVPs in parentheses for multi-fidelity solvers); ``median / <baseline>`` over the
     instances both solved with the count; ``shifted GM`` (every run, failures at the
-    penalty) and ``shifted GM / best``. Rows: the baseline first, then single- and
+    penalty) and ``shifted GM / best``; ``median app. cost`` (the median
+    application-weighted cost of the solved runs, :func:`app_cost_median`). Rows: the baseline first, then single- and
     multi-fidelity solvers, each alphabetical.
     """
     if cut.empty:
@@ -179,6 +190,7 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
                                "solved": f"{int(ok_mask.sum())}/{len(g)}",
                "success": f"{100.0 * ok_mask.mean():.0f} %"}
         row.update(emvp_stats(g[ok_mask], multi))
+        row["median app. cost"] = app_cost_median(g[ok_mask])
         row[f"median / {baseline}"] = (_both_solved_ratio(g, base) if len(base)
                                        else "- (baseline not run)")
         row["shifted GM"] = shifted_geomean(pd.to_numeric(g["emvps"], errors="coerce"),

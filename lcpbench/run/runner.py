@@ -156,6 +156,9 @@ def result_fields(res) -> dict:
         "lofi_mvps": json.dumps(res.lofi_mvps, sort_keys=True),
         "lofi_mvps_total": int(sum(res.lofi_mvps.values())), "emvps": res.emvps,
         "iterations": res.iterations, "time_s": res.time_s, "mvp_time_s": res.mvp_time_s,
+        "applications": res.applications,
+        "lofi_applications_total": float(sum(res.lofi_applications.values())),
+        "app_cost": res.app_cost,
     }
 
 

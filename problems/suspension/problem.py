@@ -219,6 +219,30 @@ def _cold(mob: LinearOperator):
     return getattr(mob, "cold_products", None)
 
 
+def _work(mob: LinearOperator):
+    """The mobility's inner-application counter (:meth:`~.bim.BimMobility.work_counts`), the
+    ``work`` hook of the counted operator, or None (RPY and the one-sphere model: a product
+    is one application)."""
+    return getattr(mob, "work_counts", None)
+
+
+def _timed(op: Operator, mob: LinearOperator, name: str) -> Operator:
+    """``op`` with its cost measured at a first (cold) product's cost and, for a mobility with
+    a work hook, the inner applications of those cold products declared as its
+    ``cold_applications`` (their mean over the timed products: one forward solve each)."""
+    work = _work(mob)
+    before = work() if work is not None else None
+    n_fwd = len(getattr(mob, "gmres_iterations", ()))
+    cost = measure_cost(op, cold=_cold(mob))
+    cold = None
+    if work is not None and before is not None:
+        after = work()
+        reps = len(getattr(mob, "gmres_iterations", ())) - n_fwd
+        apps = sum(after.values()) - sum(before.values())
+        cold = apps / reps if reps > 0 and apps > 0 else None
+    return Operator(op, cost=cost, name=name, cold_applications=cold)
+
+
 def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
                           options: Optional[ContactOptions] = None,
                           x0: Optional[np.ndarray] = None, name: str = "contact",
@@ -272,7 +296,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
            else bool(opts.symmetrize))
     dmd = ContactOperator(contacts.D, mob, symmetrize=sym)
     # an iterative model declares its products' accuracy (eps_gmres), an analytic one 0
-    high = Operator(dmd.operator(), name="high",
+    high = Operator(dmd.operator(), name="high", work=_work(mob),
                     rtol=high_fid.product_rtol() if high_fid is not None else None)
     config = Configuration(c, r, opts.mu, mob, high_fid)
     low_ops, low_mobs = {}, {}
@@ -284,14 +308,14 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
             lm, lsym = build_mobility(spec, config), spec.symmetrized(opts.symmetrize)
             lrtol = spec.product_rtol()
         low_mobs[key] = lm
-        low_ops[key] = Operator(contact_product(lm, contacts.D, lsym), name=key, rtol=lrtol)
+        low_ops[key] = Operator(contact_product(lm, contacts.D, lsym), name=key, rtol=lrtol,
+                                work=_work(lm))
     if low_ops and contacts.n:
         # the paper recomputes the cost ratio at every time step: time one product of each,
         # at the cost of a first product (measure_cost with cold: no recycled directions)
-        high = Operator(high, cost=measure_cost(high, cold=_cold(mob)), name="high")
+        high = _timed(high, mob, "high")
         setup += 1
-        low_ops = {k: Operator(op, cost=measure_cost(op, cold=_cold(low_mobs[k])), name=k)
-                   for k, op in low_ops.items()}
+        low_ops = {k: _timed(op, low_mobs[k], k) for k, op in low_ops.items()}
     info = _meta(meta, opts, M=M, contacts=contacts, sym=sym)
     if x0 is not None:
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)

@@ -302,6 +302,14 @@ class BimMobility(LinearOperator):
         finally:
             self._recycler, self._adj_recycler = saved
 
+    def work_counts(self) -> dict[str, int]:
+        """Inner applications made so far: ``{"forward": .., "adjoint": ..}``, the sums of
+        :attr:`gmres_iterations` and :attr:`adjoint_iterations` (GMRES/GCR products of the
+        traction operator and of its transpose).  The ``work`` hook of the counted operator
+        (:class:`lcpbench.Operator`), which charges each counted product the increase."""
+        return {"forward": int(sum(self.gmres_iterations)),
+                "adjoint": int(sum(self.adjoint_iterations))}
+
     def _fresh_solvers(self) -> None:
         """New (empty) recycled spaces and empty iteration and residual records."""
         self._recycler, self._adj_recycler = self._new_recyclers()
