@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lcpbench import LCP, Operator
-from lcpbench.problems.suspension.scene import LATTICE_AXES
+from lcpbench.problems.suspension.scene import LATTICE_AXES, LatticeParams
 from lcpbench.report.fidelity import cottle_heatmap_svg, fidelity_section, heatmap_svg, heatmaps
 from lcpbench.sets import SetWriter
 from lcpbench.workflows.cottle import cottle_bounds, cottle_c
@@ -262,8 +262,6 @@ def _knob_set(path, scene, lows):
 def test_the_grid_is_spanned_by_the_knobs_the_scene_declares(tmp_path, monkeypatch) -> None:
     """The framework names no knob: a scene that declares other axes gets its own grid,
     labelled with its knob names, and a set without a known scene gets no grid at all."""
-    import dataclasses
-
     from lcpbench.core import registry
     from lcpbench.core.registry import register_scene
     from lcpbench.core.scene import FidelityAxes
@@ -274,19 +272,7 @@ def test_the_grid_is_spanned_by_the_knobs_the_scene_declares(tmp_path, monkeypat
     axes = FidelityAxes(rows="levels", columns="tol", model_knob="kind",
                         grid_models=("multigrid",))
 
-    @dataclasses.dataclass(frozen=True)
-    class _Params:
-        """Parameters.
-
-        Parameters
-        ----------
-        low : tuple
-            Lows.
-        """
-
-        low: tuple = ()
-
-    @register_scene("test-knob-scene", _Params)
+    @register_scene("test-knob-scene", LatticeParams)      # its parameters do not matter
     def _make(p):
         """A scene that only declares its fidelity axes."""
         return type("S", (), {"fidelity_axes": axes})()
