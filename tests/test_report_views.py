@@ -210,3 +210,13 @@ def test_online_without_a_step_to_compare_gives_no_speedup(tmp_path):
     assert "No step is left to compare" in section
     assert not re.search(r"\d\.\d\dx", section)              # no speedup such as 5.08x
     assert "Performance profiles</h2>" not in html            # no empty section either
+
+
+def test_a_set_solved_for_free_gets_a_note_not_an_empty_box_plot(tmp_path):
+    rows = [_row("free", i, s, 0.0) for i in range(3) for s in ("bb-pgd", "mono-pqn")]
+    rows += [_row("paid", i, s, 10.0 + i) for i in range(3) for s in ("bb-pgd", "mono-pqn")]
+    html = render_report(_store(tmp_path, rows)).read_text()
+    free = html.split(">free</h3>")[1].split(">paid</h3>")[0]      # the 'free' set's section
+    assert html.count("spent 0 E-MVPs") == 1 and "spent 0 E-MVPs" in free
+    assert "E-MVPs of the solved runs: paid" in html
+    assert "E-MVPs of the solved runs: free" not in html

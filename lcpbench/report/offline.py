@@ -144,7 +144,13 @@ def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, ancho
         solved = view.cut[ranking.truthy(view.cut["solved"])]
         counts = {s: f"{int(ranking.truthy(g['solved']).sum())}/{len(g)}"
                   for s, g in view.cut.groupby("solver")}
-        if len(solved):
+        free = len(solved) and bool((pd.to_numeric(solved["emvps"], errors="coerce")
+                                     == 0).all())
+        if free:        # nothing to draw on a log axis: say so instead of an empty figure
+            parts.append(_view(view, "<p class='note'>Every solved run spent 0 E-MVPs (the "
+                               "warm start already solves or no product was needed): no "
+                               "E-MVP box plot.</p>", _caption(view, "Box plot of solved runs")))
+        elif len(solved):
             parts.append(_view(view, fig(plots.boxplot_svg(
                 solved, "solver", "emvps", f"E-MVPs of the solved runs: {view.problem} "
                 f"({n_inst} instances)", "E-MVPs (log scale)", order=list(table["solver"]),
