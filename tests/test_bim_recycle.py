@@ -105,7 +105,7 @@ def test_symmetrised_contact_operator_uses_the_paired_product():
     c = _cluster()
     F = np.tile([[0.0, 0.0, -1.0]], (4, 1))
     kw = dict(dt=0.1, delta=0.4, model="bim", p=4, eps_gmres=1e-10)
-    prob = build_contact_problem(c, 1.0, F, None, **kw)
+    prob = build_contact_problem(c, 1.0, F, None, symmetrize=True, **kw)
     assert prob.lcp.n > 0
     mob = prob.mobility
     paired = []

@@ -58,16 +58,16 @@ def test_live_bim_scene_keeps_spheres_apart_and_solves_every_step():
 
 
 def test_live_bim_contact_operator_is_symmetrised_with_the_adjoint():
-    """The boundary-integral contact operator is D'(M + M')D/2: symmetric to the GMRES
-    tolerance, two mobility solves per product, while the one-solve operator
-    (symmetrize=False) keeps the discretisation's asymmetry."""
+    """With symmetrize=True the boundary-integral contact operator is D'(M + M')D/2:
+    symmetric to the GMRES tolerance, two mobility solves per product, while the one-solve
+    operator (symmetrize=False, the default) keeps the discretisation's asymmetry."""
     from lcpbench.core.operator import dense_uncounted
     from lcpbench.problems.suspension.problem import build_contact_problem
 
     c = np.array([[0.0, 0.0, 0.0], [2.05, 0.3, 0.0], [0.3, 2.2, 0.2], [0.2, 0.8, 2.1]])
     F = np.array([[1.0, 0.5, 0.0], [-1.0, 0.0, 0.2], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
     kw = dict(dt=0.1, delta=0.5, model="bim", p=4, eps_gmres=1e-11, low=("p3",))
-    prob = build_contact_problem(c, 1.0, F, **kw)
+    prob = build_contact_problem(c, 1.0, F, symmetrize=True, **kw)
     n = prob.lcp.n
     assert n >= 3 and prob.lcp.meta["symmetrized"] and prob.lcp.meta["symmetric"]
     before = prob.extra_solves

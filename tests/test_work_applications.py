@@ -119,7 +119,7 @@ def test_bim_operator_reports_its_forward_and_adjoint_krylov_applications():
     c = np.array([[0.0, 0.0, 0.0], [2.2, 0.0, 0.0], [1.1, 1.95, 0.0]])
     F = np.tile([[0.0, -1.0, 0.0]], (3, 1))
     prob = build_contact_problem(c, 1.0, F, None, dt=0.1, delta=0.4, model="bim", p=3,
-                                 eps_gmres=1e-8)
+                                 eps_gmres=1e-8, symmetrize=True)
     op, mob = prob.lcp.A, prob.mobility
     assert prob.lcp.n > 0 and op.has_work_hook
     rng = np.random.default_rng(1)

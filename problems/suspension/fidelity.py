@@ -309,8 +309,11 @@ def _describe_split(m: re.Match, p: int, eps_gmres: float) -> Fidelity:
 
 
 register_fidelity(FidelityKind("named", r"rpy|self", _describe_named, _build_analytic, "rpy"))
+# one forward solve per product by default; symmetrize=True pairs it with the adjoint solve
+# (docs/mobility.md, "One solve per product": the answer moves by half the asymmetry, less
+# than its discretisation error, and the solvers need the same MVPs)
 register_fidelity(FidelityKind("bim", r"bim|p(\d+)(?:e(\d+))?", _describe_bim, _build_bim, "p4e6",
-                               symmetrize=True, iterative=True))
+                               iterative=True))
 # one forward solve per product, never symmetrised (:mod:`.bim.split` says why that is enough)
 register_fidelity(FidelityKind("split", r"p(\d+)(?:f(\d+))?(?:r(\d+))?(?:e(\d+))?",
                                _describe_split, _build_split, "p8f6r3e3", symmetrizable=False,

@@ -8,8 +8,8 @@ eq. (defAandb) of the method paper::
     A = D' M D,      b = (Phi - s + dt D' U_nc) / dt,      U_nc = M [F_ext; T_ext],
 
 with ``s`` the kept separation.  ``A`` is never formed: it is a counted matrix-free
-operator (:mod:`.operators`), symmetrised with the adjoint solve for the boundary-integral
-fidelities.  Low fidelities are named (:mod:`.fidelity`) and built on the high's set-up
+operator (:mod:`.operators`), one forward solve per product (symmetrised with the adjoint
+solve on request: ``ContactOptions(symmetrize=True)``).  Low fidelities are named (:mod:`.fidelity`) and built on the high's set-up
 where they can share it; their cost and the high's are measured on the instance, so
 E-MVPs use this step's cost ratio.  All options are one :class:`ContactOptions`.
 """
@@ -67,9 +67,11 @@ class ContactOptions:
     symmetrize : bool, optional
         Use ``A = D' (M + M') D / 2``, symmetrised explicitly with the adjoint mobility solve
         (every MVP then costs two mobility solves; the position update still uses
-        ``M D x``).  Default: each fidelity's own (on for the boundary-integral model,
-        symmetric only to its discretisation error; off for RPY, ``self``, user callables
-        and the distance-split lows, which are never symmetrised).
+        ``M D x``).  Default: each fidelity's own, off for every built-in model: the
+        boundary-integral ``D' M D`` (one forward solve per MVP) is symmetric only to its
+        discretisation error, which moves the answer less than that error
+        (docs/mobility.md); RPY and ``self`` are exactly symmetric; the distance-split lows
+        are never symmetrised.
     """
 
     dt: float = 0.1
@@ -107,8 +109,8 @@ class ContactProblem:
     U_nc : ndarray, shape (6M,)
         ``M [F_ext; T_ext]``: velocities without contact forces.
     lcp : LCP
-        ``A = D' M D`` (counted, matrix-free; symmetrised for the boundary-integral
-        model), ``b = (Phi - s + dt D' U_nc) / dt``, low-fidelity operators with
+        ``A = D' M D`` (counted, matrix-free; symmetrised with the adjoint solve on
+        request), ``b = (Phi - s + dt D' U_nc) / dt``, low-fidelity operators with
         per-instance costs.
     setup_solves : int
         Mobility solves spent building the problem outside the LCP's counters

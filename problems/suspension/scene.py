@@ -376,8 +376,8 @@ class LatticeScene:
         ``lows`` names the scene's low fidelities to build (default: all of ``params.low``);
         a single-fidelity solver needs none, and each one costs a mobility set-up and a
         timed product per step.  ``symmetrize`` is the option of
-        :class:`.problem.ContactOptions` (default: the boundary-integral operators are
-        symmetrised with the adjoint solve)."""
+        :class:`.problem.ContactOptions` (default: one forward solve per product; True
+        symmetrises the boundary-integral operators with the adjoint solve)."""
         P = self.params
         F, T = self.loads()
         options = ContactOptions(dt=P.dt, delta=P.delta, separation=P.separation,
