@@ -27,11 +27,11 @@ import lcpbench.toolkit.qp as qp
 from lcpbench import LCP
 from lcpbench.cli import main
 from lcpbench.core import reference as reference_mod
+from lcpbench.core.forked import call_with_deadline
 from lcpbench.core.registry import get_problem
 from lcpbench.core.result import Status
 from lcpbench.core.specs import make_params
 from lcpbench.run import runner
-from lcpbench.run.executors import call_with_deadline
 from lcpbench.run.runner import execute, plan
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep

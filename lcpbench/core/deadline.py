@@ -14,7 +14,7 @@ the runner's process timeout is the backstop.
 The timer reaches Python code only: a compiled loop that never returns to the
 interpreter (a QP backend such as ProxQP) does not see it. Such calls run in a
 forked child killed at the limit instead (:func:`lcpbench.toolkit.qp.solve_nonneg_qp`
-with ``max_seconds``, through :func:`lcpbench.run.executors.call_with_deadline`),
+with ``max_seconds``, through :func:`lcpbench.core.forked.call_with_deadline`),
 and end before this timer would fire.
 """
 

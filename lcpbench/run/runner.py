@@ -35,12 +35,12 @@ import pandas as pd
 from lcpbench.core.api import run_solver
 from lcpbench.core.clock import utc_now
 from lcpbench.core.context import Budget
+from lcpbench.core.forked import call_with_deadline
 from lcpbench.core.lcp import LCP
 from lcpbench.core.reference import default_reference_seconds, reference_without
 from lcpbench.core.reference import reference as consensus_reference
 from lcpbench.core.registry import get_problem, get_solver
 from lcpbench.core.specs import make_params
-from lcpbench.run.executors import call_with_deadline
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import RunSpec, Spec, Sweep, per_low
 

@@ -12,7 +12,7 @@ problems, runs its 10^5 outer iterations for many minutes). Given
 ``max_seconds``, :func:`solve_nonneg_qp` therefore hands the backend its own
 limit where it has one (Clarabel's and OSQP's ``time_limit``) and runs the call
 in a forked child that is killed at ``max_seconds``
-(:func:`lcpbench.run.executors.call_with_deadline`, the runner's own
+(:func:`lcpbench.core.forked.call_with_deadline`, the runner's own
 mechanism); either way the caller gets :class:`QPTimeout`.
 """
 
@@ -30,6 +30,7 @@ from typing import Optional
 import numpy as np
 import scipy.sparse as sp
 
+from lcpbench.core.forked import call_with_deadline
 from lcpbench.core.operator import BudgetExhausted
 
 __all__ = ["QP_BACKENDS", "TIME_LIMIT_OPTION", "QPTimeout", "solve_nonneg_qp",
@@ -131,8 +132,6 @@ def solve_nonneg_qp(A: np.ndarray, b: np.ndarray, backend: str, tol: float = 1e-
     if not hasattr(os, "fork"):            # no fork on this platform: the backend's own limit
         return _solve_here(A, b, backend, tol, x0, max_seconds)
     import qpsolvers  # noqa: F401 - imported before the fork, so no child imports it again
-
-    from lcpbench.run.executors import call_with_deadline
 
     kind, value = call_with_deadline(_solve_in_child, (A, b, backend, tol, x0, max_seconds),
                                      max_seconds)
