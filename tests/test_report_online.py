@@ -146,8 +146,12 @@ def test_report_renders_the_online_section_from_a_store(tmp_path, online):
     assert "<h3>Steps left out of the speedups</h3>" in section
     assert len(set(re.findall(r'box_(\dx\dx\d)_', section))) == 2
     assert "<h3>Per scene and solver</h3>" in section
+    beside = section[section.index("Beside the method paper"):section.index("Steps left out")]
+    assert "1.85x" in beside and "2.47x" in beside and "88%" in beside   # the paper's rows
     paper = pd.read_csv(tmp_path / "tables" / "online_paper.csv")
     assert list(paper["steps"]) == [3, 2]
+    beside = pd.read_csv(tmp_path / "tables" / "online_beside_paper.csv")
+    assert list(beside["source"]).count("paper") == 4
     detail = pd.read_csv(tmp_path / "tables" / "online.csv")
     assert len(detail) == 6 and detail["steps"].tolist()[:3] == [6, 6, 4]
 
@@ -178,3 +182,31 @@ def test_simulated_store_gives_ratios_over_the_common_steps(tmp_path):
             base["time_s"].sum() / mono["time_s"].sum(), rel=1e-5)
     html = (tmp_path / "report.html").read_text()
     assert "3 steps every solver finished (mono-pqn has 5" in html
+
+
+def test_measured_rows_sit_beside_the_papers_with_its_numbers(online):
+    from lcpbench.report.paper_online import beside_paper
+    both = beside_paper(tables.online_paper_table(online, BASE), BASE)
+    sizes = list(both["lattice size"])
+    # each measured size is followed by the paper's row; the unmeasured 5 and 6 come after
+    assert sizes == ["3x3x3", "3x3x3", "4x4x4", "4x4x4", "5x5x5", "6x6x6"]
+    assert list(both["source"])[1::2][:2] == ["paper", "paper"]
+    m3, p3 = both.iloc[0], both.iloc[1]
+    assert m3["Mono-PQN collision speedup"] == pytest.approx(6.0 / 2.5)
+    assert m3["Bi-PQN total speedup"] == pytest.approx(12.0 / 5.0)   # bi-pqn:low=p4 found
+    assert m3["collision share"] == pytest.approx(6.0 / 12.0)
+    # the paper's 3x3x3: 15h 21m total, 13h 31m collision, Bi-PQN 1.85x / 2.07x
+    assert p3["BB-PGD total s"] == 55260 and p3["BB-PGD collision s"] == 48660
+    assert (p3["Bi-PQN total speedup"], p3["Bi-PQN collision speedup"]) == (1.85, 2.07)
+    p6 = both.iloc[5]
+    assert p6["BB-PGD total s"] == 7 * 86400 + 18 * 3600 and p6["Mono-PQN total speedup"] == 1.16
+    assert p3["collision share"] == pytest.approx(0.8806, abs=1e-3)  # the paper's 88 %
+
+
+def test_online_table_carries_the_application_weighted_cost(online):
+    on = online.copy()
+    on["app_cost"] = np.where(on["solver"] == BASE, 4.0, 9.0)
+    t = tables.online_paper_table(on, BASE).iloc[0]
+    assert t[f"{BASE} median app cost"] == 4.0 and t["mono-pqn median app cost"] == 9.0
+    old = tables.online_paper_table(online, BASE).iloc[0]           # stores written before it
+    assert np.isnan(old["mono-pqn median app cost"])

@@ -468,8 +468,10 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
     collision-resolution seconds; for every other solver its total and
     collision-resolution speedup against the baseline (the baseline's summed
     seconds divided by the solver's, NaN without a baseline run on the scene);
-    then the median E-MVPs and median high-fidelity MVPs per step of every
-    solver. Total seconds are the whole step (``sim_total_s``), collision
+    then the median E-MVPs, median high-fidelity MVPs and median
+    application-weighted cost (``app_cost``: products weighted by the inner
+    applications they took, in cold high products; NaN for stores written before
+    it) per step of every solver. Total seconds are the whole step (``sim_total_s``), collision
     resolution the LCP solve (``time_s``).
 
     ``attrs["stored"]`` maps each scene to ``{solver: finished steps stored}``
@@ -505,8 +507,10 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
                                               and mine is not None and mine[j] > 0 else np.nan)
         for s in solvers:
             g = part[part["solver"] == s]
-            for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs")):
-                v = pd.to_numeric(g[col], errors="coerce").dropna()
+            for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs"),
+                              ("app_cost", "median app cost")):
+                v = (pd.to_numeric(g[col], errors="coerce").dropna() if col in g
+                     else pd.Series(dtype=float))
                 row[f"{s} {what}"] = float(v.median()) if len(v) else np.nan
         rows.append(row)
     out = pd.DataFrame(rows)
