@@ -114,12 +114,12 @@ def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
     st.check(ctx.n, solver)
     ctx.info["carried_pairs"] = st.rank
     S, Y = st.pairs()
-    return Pairs(S, Y, [None] * len(S)) if S else None
+    return Pairs(S, Y, [None] * len(S)) if len(S) else None
 
 
 def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveResult:
     ctx.info.update(counters.as_dict())
-    memory = SecantMemory.from_pairs(pairs.S, pairs.Y, ctx.n)
+    memory = pairs.memory(ctx.n)
     ctx.info["secant_memory"] = memory
     if out.reason == "unbounded":
         if out.ray is not None:         # the top level's p and A p: the framework checks them

@@ -129,7 +129,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         p, pending["Bp"], pending["inner"] = _outer_direction(task, st, zz, GG)
         return p
 
-    def update(p: np.ndarray, Qp: np.ndarray, eta: float) -> None:
+    def update(p: np.ndarray, Qp: np.ndarray, eta: float, G: np.ndarray) -> None:
         _update_models(task, st, _Step(p, pending["Bp"], Qp, eta), pending["inner"])
 
     z, G, reason, it, ray = iterate_level(task, z, G, direction, update)

@@ -192,9 +192,13 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoO
     direction exists (``z`` is stationary).
     """
     d, W, P, N, gram = model.compact()
-    y = z - model.apply_H(G)
-    zhat, info = compact_prox(y, d, W, P, N, gram, active=model.active, tol=opts.prox_tol,
-                              max_iter=opts.prox_max_iter)
+    shift = None
+    if model.rank:
+        # z - H G = (z - G/d) - W' c: the W' c part is formed inside the prox's first
+        # sweep over the pairs, and W G was computed in the sweep that stored the last pair
+        shift = -d * model.two_loop(model.products_with(G), d)
+    zhat, info = compact_prox(z - G / d, d, W, P, N, gram, active=model.active, shift=shift,
+                              tol=opts.prox_tol, max_iter=opts.prox_max_iter)
     counters.prox_newton_iters += info.newton_iters
     counters.prox_damped += info.damped
     counters.prox_fallbacks += int(info.fallback)
@@ -286,8 +290,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
             model.set_pairs(seed.S, seed.Y)
     task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
 
-    def update(p: np.ndarray, Qp: np.ndarray, eta: float) -> None:
-        if not model.add_pair(eta * p, eta * Qp):
+    def update(p: np.ndarray, Qp: np.ndarray, eta: float, G: np.ndarray) -> None:
+        if not model.add_pair(eta * p, eta * Qp, G):
             counters.skipped_pairs += 1
 
     z, G, reason, it, ray = iterate_level(task, z, G, lambda zz, GG: pqn_direction(
@@ -301,7 +305,8 @@ HANDOFF = "handoff"     # a direction rule's answer: finish the level as Mono-PQ
 def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Callable,
              update: Callable, checked: bool = False):
     """The loop every level runs: stop test, cap, ``direction(z, G)``, one product, step,
-    ``update(p, Qp, eta)``, and the periodic exact gradient against the recurrence's drift.
+    ``update(p, Qp, eta, G)`` (``G`` the new gradient), and the periodic exact gradient
+    against the recurrence's drift.
 
     ``direction`` returns the search direction, None (no descent direction:
     ``stationary``) or ``HANDOFF`` (the caller finishes otherwise). Returns
@@ -326,7 +331,7 @@ def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Call
             break
         Qp, z, G, eta = step
         it += 1
-        update(p, Qp, eta)
+        update(p, Qp, eta, G)
         if task.exact_gradient is not None and opts.recompute_every and \
                 it % opts.recompute_every == 0:
             G = task.exact_gradient(z)

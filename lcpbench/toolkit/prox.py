@@ -44,7 +44,8 @@ import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-__all__ = ["weighted_prox", "compact_prox", "ActiveGram", "ProxInfo", "FALLBACK_ITERS"]
+__all__ = ["weighted_prox", "compact_prox", "shifted_point", "ActiveGram", "ProxInfo",
+           "FALLBACK_ITERS"]
 
 #: Steps of the projected-gradient fallback (each O(n r)): a cost cap of about 500 n r
 #: (with the momentum restart it converges in a few hundred steps where plain
@@ -117,7 +118,7 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
 
 def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
                  gram: Optional[np.ndarray] = None, *, active: Optional[ActiveGram] = None,
-                 tol: float = 1e-12, max_iter: int = 100,
+                 shift: Optional[np.ndarray] = None, tol: float = 1e-12, max_iter: int = 100,
                  fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
     """:func:`weighted_prox` for factors given by coefficients: ``U = W' P``, ``V = W' N``.
 
@@ -144,6 +145,11 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     active : ActiveGram, optional
         The active set and its Gram matrix of the previous evaluation with the
         same ``W`` (scalar ``d`` only); updated in place to this evaluation's.
+    shift : ndarray, shape (m,), optional
+        The point to project is ``y + D^-1 W' shift`` (a quasi-Newton step ``z - H g``
+        whose ``W'`` part is still in coefficients). It is formed in the same sweep over
+        ``W`` that computes ``W y`` and ``W Lam y`` for the Newton system, so the step
+        costs no sweep of its own.
     tol, max_iter, fallback_iters
         As for :func:`weighted_prox`.
 
@@ -155,11 +161,14 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     y = np.asarray(y, dtype=np.float64)
     info = ProxInfo()
     r1, r2 = P.shape[1], N.shape[1]
+    products = None
+    if shift is not None and W.shape[0]:
+        y, products = shifted_point(y, d, W, shift)
     if r1 + r2 == 0 or np.all(y >= 0):
         # Closed form: a diagonal metric separates; y >= 0 is its own prox.
         return np.maximum(y, 0.0), info
     newton = _NewtonSystem(y, d, W, P, N, gram)
-    t, converged = newton.solve(tol, max_iter, info, active)
+    t, converged = newton.solve(tol, max_iter, info, active, products)
     if converged:
         return np.maximum(t, 0.0), info
     info.fallback = True
@@ -186,6 +195,36 @@ def row_products(W: np.ndarray, vectors) -> np.ndarray:
         for i, v in enumerate(vectors):
             out[:, i] += Wb @ v[j:j + _BLOCK]
     return out
+
+
+def _block_columns(m: int) -> int:
+    """Columns of an ``m``-row array that make about 1 MB (stays in cache between the
+    products of one block), between 1024 and :data:`_BLOCK`."""
+    return int(min(_BLOCK, max(1024, (1 << 17) // max(m, 1))))
+
+
+def shifted_point(y0: np.ndarray, d, W: np.ndarray, c0: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``y = y0 + D^-1 W' c0`` with ``[W y, W y_+]`` (shape ``(m, 2)``), in one sweep over ``W``.
+
+    Each block of columns of ``W`` is read from memory once and used three times while
+    it is in cache: for ``y`` on the block, then its products with ``y`` and with
+    ``max(y, 0)`` (the Newton system's ``W y`` and ``W Lam y`` at the start point, whose
+    active set is ``y > 0``).
+    """
+    n = y0.shape[0]
+    y = np.empty(n)
+    out = np.zeros((W.shape[0], 2))
+    scalar = np.ndim(d) == 0
+    dv = d if scalar else np.broadcast_to(np.asarray(d, dtype=np.float64), (n,))
+    step = _block_columns(W.shape[0])
+    for j in range(0, n, step):
+        Wb = W[:, j:j + step]
+        yb = y[j:j + step]
+        np.add(y0[j:j + step], (c0 @ Wb) / (dv if scalar else dv[j:j + step]), out=yb)
+        out[:, 0] += Wb @ yb
+        out[:, 1] += Wb @ np.maximum(yb, 0.0)
+    return y, out
 
 
 @dataclass
@@ -275,13 +314,15 @@ class _NewtonSystem:
             return self._rows(act), 0
         return self.G - self._rows(np.flatnonzero(~mask)), 0
 
-    def start(self, mask, cache: Optional[ActiveGram]):
-        """``(mask, M, h, flips)`` at the start, from the cached active set if it fits."""
+    def start(self, mask, cache: Optional[ActiveGram], products=None):
+        """``(mask, M, h, flips)`` at the start, from the cached active set if it fits;
+        ``products`` is ``[W y, W Lam y]`` if already known (:func:`shifted_point`)."""
         if cache is not None and cache.gram.shape == self.G.shape:
             M, flips = self._gram_of(mask, (cache.mask, cache.gram), cache.flips)
         else:
             M, flips = self._gram_of(mask, None, 0)
-        Wy = row_products(self.W, (self.y, np.where(mask, self.y, 0.0)))
+        Wy = products if products is not None else \
+            row_products(self.W, (self.y, np.where(mask, self.y, 0.0)))
         self.Wy = Wy[:, 0]
         return mask, M, Wy[:, 1], flips
 
@@ -323,7 +364,7 @@ class _NewtonSystem:
 
     # ------------------------------------------------------------------ Newton
     def solve(self, tol: float, max_iter: int, info: ProxInfo,
-              cache: Optional[ActiveGram] = None):
+              cache: Optional[ActiveGram] = None, products: Optional[np.ndarray] = None):
         """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root.
 
         ``cache`` (scalar ``d`` only) starts the active-set Gram matrix and
@@ -332,7 +373,7 @@ class _NewtonSystem:
         y = self.y
         a = np.zeros(self.r1 + self.Qc.shape[1])
         t = y
-        act = self.start(t > 0, cache if self.scalar else None)
+        act = self.start(t > 0, cache if self.scalar else None, products)
         Lv = self.residual(a, np.zeros(self.W.shape[0]), act)
         scale = 1.0 + np.linalg.norm(y)
         res = np.linalg.norm(Lv)

@@ -89,31 +89,56 @@ class SecantMemory:
                              "arrays of the same shape (n, r), one pair y = A s per column")
         if not (np.all(np.isfinite(S)) and np.all(np.isfinite(Y))):
             raise ValueError("secant memory: S or Y has non-finite entries; pass finite pairs")
-        self.S, self.Y = S, Y
+        # stored one pair per row: a solver's pairs are rows, and copying them in this layout
+        # is a plain sweep (columns of an (n, r) array would be a strided transpose)
+        self._S, self._Y = np.ascontiguousarray(S.T), np.ascontiguousarray(Y.T)
+
+    @classmethod
+    def from_rows(cls, S: np.ndarray, Y: np.ndarray) -> SecantMemory:
+        """The memory of ``(r, n)`` arrays, one pair per row, oldest first (taken, not copied:
+        the caller hands them over)."""
+        mem = cls.__new__(cls)
+        mem._S = np.asarray(S, dtype=np.float64).reshape(-1, S.shape[-1])
+        mem._Y = np.asarray(Y, dtype=np.float64).reshape(mem._S.shape)
+        return mem
 
     @classmethod
     def from_pairs(cls, S: list, Y: list, n: int) -> SecantMemory:
         """The memory of lists of pair vectors (oldest first) of length ``n``."""
-        if not S:
-            return cls(np.zeros((n, 0)), np.zeros((n, 0)))
-        return cls(np.column_stack(S), np.column_stack(Y))
+        if not len(S):
+            return cls.from_rows(np.zeros((0, n)), np.zeros((0, n)))
+        return cls.from_rows(np.array(S, dtype=np.float64), np.array(Y, dtype=np.float64))
+
+    @property
+    def S(self) -> np.ndarray:
+        """The steps, shape ``(n, r)``, one pair per column (a read-only view)."""
+        view = self._S.T
+        view.flags.writeable = False
+        return view
+
+    @property
+    def Y(self) -> np.ndarray:
+        """The products ``A s``, shape ``(n, r)`` (a read-only view)."""
+        view = self._Y.T
+        view.flags.writeable = False
+        return view
 
     @property
     def n(self) -> int:
         """Unknowns of the LCP the pairs belong to."""
-        return int(self.S.shape[0])
+        return int(self._S.shape[1])
 
     @property
     def rank(self) -> int:
         """Number of pairs."""
-        return int(self.S.shape[1])
+        return int(self._S.shape[0])
 
     def __len__(self) -> int:
         return self.rank
 
     def pairs(self) -> tuple[list, list]:
-        """``(S, Y)`` as lists of column vectors, oldest first."""
-        return list(self.S.T.copy()), list(self.Y.T.copy())
+        """``(S, Y)`` as lists of vectors (copies), oldest first."""
+        return list(self._S.copy()), list(self._Y.copy())
 
     def check(self, n: int, solver: str) -> None:
         """Raise a ``ValueError`` naming the mismatch unless the pairs have ``n`` rows."""
@@ -247,10 +272,20 @@ class DiagonalBFGS:
         self._coef: Optional[tuple] = None  # (d, P, N) for the current pairs
         #: the last prox's active set and W diag(mask) W' (kept up to date with W)
         self._active = ActiveGram(np.zeros(n, dtype=bool), np.zeros((0, 0)))
+        self._Wg: Optional[tuple] = None    # (g, W g) of the last add_pair's g
 
     # ------------------------------------------------------------------ pairs
-    def add_pair(self, s: np.ndarray, y: np.ndarray) -> bool:
-        """Store the secant pair ``(s, y)`` (``B s = y``); False if skipped."""
+    def add_pair(self, s: np.ndarray, y: np.ndarray, g: Optional[np.ndarray] = None) -> bool:
+        """Store the secant pair ``(s, y)`` (``B s = y``); False if skipped.
+
+        ``g`` (optional, the new gradient): its products with the pairs are kept for
+        :meth:`products_with` (the next direction's two-loop recursion needs them). When
+        ``g`` is the previous pair's ``g`` plus ``y`` (the PQN gradient recurrence
+        ``g + eta A p`` with ``y = eta A p``), they are ``W g_old + W y``, ``W y`` being
+        the new Gram column, so no product with ``g`` is made; otherwise ``W g`` is
+        computed in the same sweep over the pairs as the new Gram rows.
+        """
+        prev, self._Wg = self._Wg, None
         if not _accept(s, y, self.curvature_tol):
             self.skipped += 1
             return False
@@ -267,18 +302,39 @@ class DiagonalBFGS:
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
         mask = self._active.mask
-        g = row_products(rows, (s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)))
+        vectors = [s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)]
+        recurrence = g is not None and prev is not None and prev[1].shape[0] <= used \
+            and np.array_equal(g, prev[0] + y)
+        if g is not None and not recurrence:
+            vectors.append(g)
+        g_in, g = g, row_products(rows, vectors)
         self._gram[:used, 2 * slot:2 * slot + 2] = g[:, :2]
         self._gram[2 * slot:2 * slot + 2, :used] = g[:, :2].T
         A = self._active.gram
         if A.shape[0] < used:
             A = np.pad(A, (0, used - A.shape[0]))
-        A[:used, 2 * slot:2 * slot + 2] = g[:, 2:]
-        A[2 * slot:2 * slot + 2, :used] = g[:, 2:].T
+        A[:used, 2 * slot:2 * slot + 2] = g[:, 2:4]
+        A[2 * slot:2 * slot + 2, :used] = g[:, 2:4].T
         self._active.gram = A
         self._order.append(slot)
         self._coef = None
+        if len(vectors) == 5:
+            self._Wg = (np.array(g_in, dtype=np.float64), g[:, 4].copy())
+        elif recurrence:
+            Wg = g[:, 1].copy()
+            Wg[:prev[1].shape[0]] += prev[1]
+            Wg[2 * slot:2 * slot + 2] = (float(s @ g_in), float(y @ g_in))   # new rows
+            self._Wg = (np.array(g_in, dtype=np.float64), Wg)
         return True
+
+    def products_with(self, g: np.ndarray) -> np.ndarray:
+        """``W g`` over the rows of :meth:`compact`'s ``W``: kept from :meth:`add_pair` when
+        ``g`` is the vector it was given (compared entry by entry), else one sweep."""
+        m = 2 * (max(self._order) + 1) if self._order else 0
+        if self._Wg is not None and self._Wg[1].shape[0] == m and \
+                np.array_equal(self._Wg[0], g):
+            return self._Wg[1]
+        return row_products(self._W[:m], (g,))[:, 0]
 
     def _grow(self, slots: int) -> None:
         W = np.empty((2 * slots, self.n))      # rows are read only once written
@@ -292,7 +348,7 @@ class DiagonalBFGS:
         """Keep the newest ``memory`` pairs (0 keeps all)."""
         if memory and len(self._order) > memory:
             del self._order[:-memory]
-            self._coef = None
+            self._coef = self._Wg = None
 
     def correct(self, u: np.ndarray, v: np.ndarray) -> None:
         """Pairs of the changed Hessian ``Q + u u' - v v'``: ``y_i <- y_i + u u's_i - v v's_i``.
@@ -302,6 +358,7 @@ class DiagonalBFGS:
         matrices corrected in ``O(r^2)``. Pairs that lose the curvature test are
         dropped (counted in ``skipped``), as :meth:`set_pairs` would.
         """
+        self._Wg = None
         if not self._order:
             return
         m = 2 * (max(self._order) + 1)
@@ -337,9 +394,13 @@ class DiagonalBFGS:
 
     def set_pairs(self, S: list, Y: list) -> None:
         """Replace the memory by the given pairs (curvature-checked, oldest first)."""
-        self._order, self._coef = [], None
+        self._order, self._coef, self._Wg = [], None, None
         for s, y in zip(S, Y):
             self.add_pair(s, y)
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(S, Y)`` as ``(r, n)`` arrays, one pair per row, oldest first (copies)."""
+        return self._W[[2 * k for k in self._order]], self._W[[2 * k + 1 for k in self._order]]
 
     @property
     def S(self) -> list:
@@ -540,6 +601,10 @@ class Pairs:
     def __len__(self) -> int:
         return len(self.S)
 
+    def memory(self, n: int) -> SecantMemory:
+        """The pairs as a :class:`SecantMemory` (one copy, row by row)."""
+        return SecantMemory.from_pairs(self.S, self.Y, n)
+
 
 class ModelPairs(Pairs):
     """The pairs a Mono-PQN model holds, read from it (copies made only when asked)."""
@@ -553,6 +618,12 @@ class ModelPairs(Pairs):
 
     def __len__(self) -> int:
         return self.model.rank if self.model is not None else 0
+
+    def memory(self, n: int) -> SecantMemory:
+        """The pairs as a :class:`SecantMemory` (one copy of the model's rows)."""
+        if self.model is None:
+            return SecantMemory.from_pairs([], [], n)
+        return SecantMemory.from_rows(*self.model.rows())
 
     def add(self, s, y, b0s=None) -> None:
         raise TypeError("ModelPairs are read-only; add pairs to the model")
