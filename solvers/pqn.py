@@ -47,7 +47,14 @@ from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.toolkit.pqn_bilevel import bi_level, low_start
-from lcpbench.toolkit.pqn_levels import BiOptions, Counters, MonoOptions, Pairs, mono_level
+from lcpbench.toolkit.pqn_levels import (
+    BiOptions,
+    Counters,
+    IterateProducts,
+    MonoOptions,
+    Pairs,
+    mono_level,
+)
 from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
@@ -134,6 +141,30 @@ def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveR
     return ctx.finish(out.z, out.G, state=memory)
 
 
+def _iterate_products(ctx: SolverContext, p: MonoOptions):
+    """``(products, stop)``: the :class:`IterateProducts` of ``products=iterate`` (None
+    for ``paper``) and the stop test, which then confirms every claim by a counted product.
+
+    The difference needs the operator's accuracy: declared (``Operator(rtol=)``),
+    a float64 matrix, or measured by the framework (uncounted); an operator of
+    unknown accuracy gets products of the direction (``info['products']`` says so).
+    """
+    stop = ConfirmedReport(ctx)
+    ctx.info["products"] = p.products
+    if p.products != "iterate":
+        return None, stop
+    acc = ctx.operator_accuracy()
+    if not acc.known:
+        ctx.info["products"] = "paper (the operator's accuracy is unknown)"
+        return None, stop
+
+    def confirmed(z, G):       # every claim by a counted product: G is made of differences
+        return stop(z, G, always=True)
+
+    confirmed.exact = stop.exact               # type: ignore[attr-defined]
+    return IterateProducts(ctx.b, acc.rtol, p.difference_tol), confirmed
+
+
 def _start(ctx: SolverContext):
     x = np.maximum(ctx.x0, 0.0)
     return x, ctx.A @ x + ctx.b
@@ -171,7 +202,7 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     """
     x, g = _start(ctx)
     counters = Counters()
-    stop = ConfirmedReport(ctx)
+    products, stop = _iterate_products(ctx, p)
     seed = _carried(ctx, "mono-pqn")
     pair = free_secant_pair(x, g, ctx.b) if p.free_pair else None
     if pair is not None:
@@ -181,7 +212,9 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
         out = mono_level(apply, x, g, stop, sys.maxsize, p, counters, seed=seed,
-                         exact_gradient=exact)
+                         exact_gradient=exact, products=products)
+    if products is not None:
+        ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
     return _finish(ctx, out, counters, out.pairs)
 
@@ -208,7 +241,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     counters = Counters()
     lows = [with_current_blas_threads(ctx.low[k].matvec) for k in names]
     carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
-    stop = ConfirmedReport(ctx)
+    products, stop = _iterate_products(ctx, p)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
     from_low = p.start == "low"
@@ -223,7 +256,10 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
         out, state = bi_level(apply, lows, x, g, stop, sys.maxsize, p,
                               counters, state=level_state, warm_start=not from_low,
                               exact_gradient=exact, floor=floor, model_error=rho,
-                              prev_residual=r_prev, fallback_seed=carried)
+                              prev_residual=r_prev, fallback_seed=carried,
+                              products=products)
+    if products is not None:
+        ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
     return _finish(ctx, out, counters, out.pairs)

@@ -19,6 +19,7 @@ from lcpbench.core.residuals import kkt_abs
 from lcpbench.toolkit.pqn_levels import (
     HANDOFF,
     BiOptions,
+    IterateProducts,
     Counters,
     LevelOutcome,
     LevelTask,
@@ -48,7 +49,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
              exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
              floor: float = 0.0, model_error: Optional[float] = None,
              prev_residual: Optional[float] = None, adaptive: bool = True,
-             fallback_seed: Optional[Pairs] = None) -> tuple[LevelOutcome, dict]:
+             fallback_seed: Optional[Pairs] = None,
+             products: Optional[IterateProducts] = None) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
     Each outer iteration solves the paper's PQN subproblem,
@@ -89,6 +91,10 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     which they would make less accurate than ``lows[0]`` alone for a good
     low fidelity, and where each would cost a product with ``lows[0]``.
 
+    ``products``: the outer level's high products are of the new point
+    (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, ``products=iterate``),
+    also in its Mono-PQN fallback steps and after a handoff.
+
     Warm start (``warm_start=True``, the old start kept as ``start=high``):
     the first subproblem is solved to ``warm_rtol``. The paper's start is
     :func:`low_start`, whose answer comes in through ``state``.
@@ -100,7 +106,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     state : dict
         ``{"pairs": Pairs, "inner": Pairs|dict}`` to continue later.
     """
-    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
+    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient, products)
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
     diag = DiagonalBFGS(z.shape[0], memory=opts.memory or None, scaling=opts.scaling,
@@ -257,7 +263,8 @@ def _as_mono(task: LevelTask, z: np.ndarray, G: np.ndarray, it: int, st: _BiStat
     task.counters.abandoned_low = True
     out = mono_level(task.apply, z, G, task.stop, task.max_iter - it, task.opts, task.counters,
                      seed=Pairs(list(st.diag.S), list(st.diag.Y)),
-                     exact_gradient=task.exact_gradient, checked=checked)
+                     exact_gradient=task.exact_gradient, checked=checked,
+                     products=task.products)
     task.counters.mono_fallbacks += out.iterations
     return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs, out.ray),
             st.carried())

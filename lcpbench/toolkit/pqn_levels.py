@@ -34,7 +34,7 @@ from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Pairs, Rank2
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
 __all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "LevelTask",
-           "HANDOFF", "mono_level", "iterate_level", "pqn_direction", "optimal_step",
+           "IterateProducts", "HANDOFF", "mono_level", "iterate_level", "pqn_direction", "optimal_step",
            "model_check", "forcing_term"]
 
 
@@ -69,6 +69,20 @@ class MonoOptions(CheckedParams):
         With a nonzero warm start ``x0``, seed the BFGS memory with the free
         secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
         gradient and ``A 0 = 0`` (as the authors' code does).
+    products : str
+        What the high-fidelity product of an iteration is applied to. ``paper``
+        (default): the direction, ``A p``, as in the paper. ``iterate``: the new
+        point ``x^ = x + p``, with ``A p = A x^ - A x`` by difference
+        (:class:`IterateProducts`): an operator that recycles Krylov directions
+        solves products of converging inputs in few new directions, and a new
+        direction ``p`` in nearly the cold number (docs/benchmarks.md, "Products of
+        the iterate"). Falls back to ``paper`` products once the difference is
+        too inaccurate (``difference_tol``), and every convergence claim is then
+        confirmed by a counted product.
+    difference_tol : float
+        ``products=iterate``: largest relative error of ``A p`` formed by
+        difference, ``rtol (||A x^|| + ||A x||) / ||A p||`` with ``rtol`` the
+        operator's accuracy (:class:`IterateProducts`).
     """
 
     memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
@@ -78,6 +92,8 @@ class MonoOptions(CheckedParams):
     prox_max_iter: Annotated[int, Bounds(ge=1)] = 100
     recompute_every: Annotated[int, Bounds(ge=0)] = 50   # 0 never recomputes
     free_pair: bool = True
+    products: Literal["paper", "iterate"] = "paper"
+    difference_tol: Annotated[float, Bounds(gt=0, lt=1)] = 0.1
 
 
 @dataclass(frozen=True)
@@ -233,7 +249,71 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
-def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
+class IterateProducts:
+    """``A p`` as ``A (x + p) - A x``: the product of the new point, not of the direction.
+
+    PQN's product of an iteration is ``A p`` for the step ``p = x^ - x`` to the prox
+    point ``x^``. An operator that is an iterative solve with Krylov recycling
+    (the boundary-integral mobility) solves a product whose input is close to
+    earlier inputs in few new directions; the directions ``p`` are new each
+    iteration, the points ``x^`` converge. So the product is applied to ``x^``
+    and ``A p = A x^ - (G - b)``, ``G = A x + b`` being the known gradient: one
+    product per iteration as before.
+
+    Accuracy. A product of an operator of relative accuracy ``rtol`` (its declared
+    ``Operator(rtol=)``, or the framework's measurement; at least ``16 eps sqrt(n)``
+    for rounding) is off by up to ``rtol ||A v||``; ``A x^`` and the ``A x`` inside
+    ``G`` each carry such an error, so the difference is off by up to
+    ``e = rtol (||A x^|| + ||A x||)``, while a product of ``p`` is off by
+    ``rtol ||A p||``. Relative to ``||A p||`` the difference's error,
+    ``e / ||A p||``, grows as the iterates converge (``p -> 0`` while ``A x``
+    does not). The step length and the secant pair ``(eta p, eta A p)`` tolerate a
+    small relative error (the model only preconditions; the step is measured along
+    ``p``), so the difference is used while ``e <= difference_tol ||A p||``. Once it
+    exceeds a tenth of that, the next step's would likely exceed it all: products of
+    ``p`` are made from the next iteration on (``switched``). A difference already
+    beyond ``difference_tol`` is replaced by a product of ``p`` (one extra product,
+    counted in ``direct``). The gradient ``G + eta A p`` is then a combination of
+    products of points, as accurate as a product of the new iterate; the solver
+    confirms every convergence claim with a counted product.
+    """
+
+    def __init__(self, b: np.ndarray, rtol: float, tol: float):
+        self.b = b
+        self.rtol = max(float(rtol), 16 * np.finfo(float).eps * np.sqrt(max(b.shape[0], 1)))
+        self.tol = tol
+        self.on = True
+        self.made = 0                 # products of points
+        self.direct = 0               # differences replaced by a product of p
+        self.switched: Optional[int] = None   # products of points made before the switch
+        self.errors: list = []        # e / ||A p|| of each difference
+
+    def __call__(self, apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray
+                 ) -> np.ndarray:
+        """``Q p`` for the step from ``z`` (gradient ``G``) along ``p``."""
+        if not self.on:
+            return apply(p)
+        Az = G - self.b
+        Ax_hat = apply(z + p)
+        Qp = Ax_hat - Az
+        self.made += 1
+        err = self.rtol * (float(np.linalg.norm(Ax_hat)) + float(np.linalg.norm(Az)))
+        size = float(np.linalg.norm(Qp))
+        rel = err / size if size > 0 else float("inf")
+        self.errors.append(rel)
+        if not rel <= 0.1 * self.tol:
+            self.on, self.switched = False, self.made
+        if not rel <= self.tol:
+            self.direct += 1
+            return apply(p)
+        return Qp
+
+    def as_dict(self) -> dict:
+        return {"iterate_products": self.made, "iterate_direct": self.direct,
+                "iterate_switched": self.switched, "iterate_errors": list(self.errors)}
+
+
+def _step_along(task: LevelTask, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
     """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
 
     Returns ``((Qp, z_new, G_new, eta), "", None)``, or None with the reason the
@@ -242,7 +322,7 @@ def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.nd
     """
     if p is None:
         return None, "stationary", None
-    Qp = apply(p)
+    Qp = task.apply(p) if task.products is None else task.products(task.apply, z, G, p)
     z_new, G_new, eta = optimal_step(z, G, p, Qp)
     if z_new is None:
         return None, "unbounded", (p, Qp)
@@ -254,7 +334,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
                opts: BiOptions, counters: Counters, *, seed: Optional[Pairs] = None,
                memory: Optional[int] = None,
                exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-               checked: bool = False) -> LevelOutcome:
+               checked: bool = False, products: Optional[IterateProducts] = None
+               ) -> LevelOutcome:
     """Algorithm pqn (Mono-PQN) on ``min_{z>=0} q(z)`` with Hessian product ``apply``.
 
     Parameters
@@ -278,6 +359,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
     checked : bool
         The caller has already tested ``stop`` at the start point (skip it once:
         a second report of the same iterate would look like stagnation).
+    products : IterateProducts, optional
+        Apply ``apply`` to the new point instead of the direction (top level only).
     """
     mem = opts.memory if memory is None else memory
     if seed is not None and seed.model is not None and \
@@ -288,7 +371,7 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
                              gamma=opts.gamma)
         if seed is not None and len(seed):
             model.set_pairs(seed.S, seed.Y)
-    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
+    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient, products)
 
     def update(p: np.ndarray, Qp: np.ndarray, eta: float, G: np.ndarray) -> None:
         if not model.add_pair(eta * p, eta * Qp, G):
@@ -325,7 +408,7 @@ def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Call
         if isinstance(p, str):
             reason = p
             break
-        step, end, ray = _step_along(task.apply, z, G, p)
+        step, end, ray = _step_along(task, z, G, p)
         if step is None:
             reason = end
             break
@@ -350,6 +433,8 @@ class LevelTask:
     opts: BiOptions
     counters: Counters
     exact_gradient: Optional[Callable] = None
+    #: products of the new point (``products=iterate``, the top level only: it knows ``b``)
+    products: Optional[IterateProducts] = None
 
 
 def model_check(Qp: np.ndarray, Bp: np.ndarray) -> float:
