@@ -242,6 +242,11 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     lows = [with_current_blas_threads(ctx.low[k].matvec) for k in names]
     carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
     products, stop = _iterate_products(ctx, p)
+    if products is not None and len(names) == 1:
+        # the low's products of points too, where its accuracy is declared or it is a matrix
+        low = ctx.low[names[0]]
+        products.low_rtol = low.rtol if low.rtol is not None else (0.0 if low.explicit
+                                                                   else None)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
     from_low = p.start == "low"
@@ -250,7 +255,7 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
         if from_low:
             x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, exact,
-                                                       floor)
+                                                       floor, products=products)
         else:
             g = exact(x)
         out, state = bi_level(apply, lows, x, g, stop, sys.maxsize, p,

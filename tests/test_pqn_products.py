@@ -48,16 +48,28 @@ def test_iterate_products_apply_the_operator_to_points_not_directions(solver):
     for mode in ("paper", "iterate"):
         rec = _Recorder(A)
         op = lcpbench.Operator(rec, shape=A.shape, rtol=0.0, cost=1.0)
-        low = lcpbench.Operator(A + 0.01 * np.diag(np.diag(A)), name="low", cost=0.1)
+        low_rec = _Recorder(A + 0.01 * np.diag(np.diag(A)))
+        low = lcpbench.Operator(low_rec, shape=A.shape, name="low", cost=0.1, rtol=0.0)
         res = lcpbench.solve(lcpbench.LCP(op, b, low={"low": low}),
                              solver=f"{solver}:products={mode}{extra}", tol=1e-10)
         assert res.status.value == "converged" and res.solved
         runs[mode] = (res, rec.inputs)
+        if solver == "bi-pqn":     # the subproblems' low products are of points too
+            lofi = sum(res.lofi_mvps.values())
+            negative = sum(np.min(v) < 0 for v in low_rec.inputs)
+            if mode == "paper":
+                assert res.info["low_iterate_products"] == 0 and negative >= lofi // 2
+            else:
+                assert res.info["low_iterate_products"] >= lofi // 2
+                assert negative <= lofi - res.info["low_iterate_products"]
     paper_in, iterate_in = runs["paper"][1], runs["iterate"][1]
-    assert any(np.min(v) < 0 for v in paper_in)           # directions
-    assert all(np.min(v) >= 0 for v in iterate_in)        # points of the feasible set
     res = runs["iterate"][0]
-    assert res.info["iterate_products"] >= 3 and res.info["iterate_switched"] is None
+    made = res.info["iterate_products"]
+    # directions have entries of both signs; points of the feasible set have none < 0:
+    # only the products made after the switch to directions (near the end) may have
+    assert sum(np.min(v) < 0 for v in paper_in) >= runs["paper"][0].mvps // 2
+    assert sum(np.min(v) < 0 for v in iterate_in) <= res.mvps - made
+    assert made >= res.mvps // 2 and made >= 3
     np.testing.assert_allclose(res.w, A @ res.x + b, rtol=0, atol=1e-8)
     x_p, x_i = runs["paper"][0].x, res.x
     assert np.linalg.norm(x_i - x_p) <= 1e-7 * np.linalg.norm(x_p)
