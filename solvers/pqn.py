@@ -21,13 +21,32 @@ MVPs per iteration
 * ``multi-pqn``: as ``bi-pqn`` with the subproblem solved by Bi-PQN on the next
   cheaper operator, recursively.
 
+Products of the iterate
+-----------------------
+``products=iterate`` (default ``paper``) applies the high-fidelity operator to the
+new point ``x^ = x + p`` instead of the direction ``p`` and forms ``A p = A x^ - A x``
+by difference (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, where the
+accuracy argument is): the same number of products, but an operator with Krylov
+recycling (the boundary-integral mobility) solves products of converging inputs in
+few new directions. Bi-PQN's low products (the low start and the subproblems) are
+then of points too, when the low's accuracy is declared or it is a matrix. Once the
+difference's error bound passes ``difference_tol`` of ``||A p||`` the solve goes
+back to products of ``p``; every convergence claim is confirmed by a counted
+product (of the final iterate: cheap with recycling). Measured in
+docs/benchmarks.md, "Products of the iterate".
+
 Work outside products
 ---------------------
 O(n r) per iteration (r secant pairs kept): the BFGS models are kept in compact
 form (pairs and their Gram matrices, :class:`~lcpbench.toolkit.quasinewton.DiagonalBFGS`),
 the weighted prox builds its Newton system from Gram matrices
 (:func:`~lcpbench.toolkit.prox.compact_prox`), and a Bi-PQN subproblem continues the
-previous one's model corrected by the rank-two change of ``B``. The solvers' own dense
+previous one's model corrected by the rank-two change of ``B``. Per iteration the pairs
+are swept once by the pair update (the new Gram rows; the two-loop's ``W g`` follows
+from them by the recurrence ``g + y``), once to form the quasi-Newton point with the
+prox's start (:func:`~lcpbench.toolkit.prox.shifted_point`) and once per Newton step
+of the prox; the pairs' storage is reserved at once, and the secant memory handed back
+is one copy of the pairs' rows. The solvers' own dense
 algebra runs with BLAS on one thread, entered once per solve; the products (the LCP's
 operators) run with the thread counts in force when the solve began.
 """

@@ -19,8 +19,8 @@ from lcpbench.core.residuals import kkt_abs
 from lcpbench.toolkit.pqn_levels import (
     HANDOFF,
     BiOptions,
-    IterateProducts,
     Counters,
+    IterateProducts,
     LevelOutcome,
     LevelTask,
     forcing_term,
