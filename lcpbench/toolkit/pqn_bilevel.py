@@ -268,7 +268,7 @@ def _update_models(task: LevelTask, st: _BiState, step: _Step, inner_new) -> Non
     Bs = eta * (b0p + corr)
     if st.Lx is not None:           # lows[0] x+ = lows[0] x + eta lows[0] p, and its error
         if step.Bp is None or st.inner_err is None:
-            st.Lx_err += eta * st.low_rtol * float(np.linalg.norm(b0p))
+            st.Lx_err += eta * (st.low_rtol or 0.0) * float(np.linalg.norm(b0p))
         else:                       # (1 - eta) lows[0] x + eta lows[0] z_inner
             st.Lx_err = abs(1.0 - eta) * st.Lx_err + eta * st.inner_err
         st.Lx = st.Lx + eta * b0p
