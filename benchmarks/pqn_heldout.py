@@ -62,17 +62,24 @@ def heldout_lcp(scene_name: str, m: int, seed: int, p: int, pack: int, error: fl
     return lcp, A, lows
 
 
-def rows(lcp, A, lows) -> list[str]:
+def measure(lcp, A, lows) -> list[dict]:
+    """Bi-PQN (defaults) on each low beside the oracle; Mono-PQN and BB-PGD for scale."""
     mono = lcpbench.solve(lcp, solver="mono-pqn", tol=TOL)
     bb = lcpbench.solve(lcp, solver="bb-pgd", tol=TOL)
     out = []
     for name, L in lows.items():
         r = lcpbench.solve(lcp, solver=f"bi-pqn:low={name}", tol=TOL)
-        oracle = oracle_high_mvps(A, L, np.asarray(lcp.b), TOL)
-        out.append(f"| {lcp.name} | {lcp.n} | {name} | {r.mvps} | {oracle} | "
-                   f"{'yes' if r.mvps <= oracle else 'no'} | {r.emvps:.2f} | "
-                   f"{'yes' if r.solved else 'NO'} | {mono.mvps} | {bb.mvps} |")
+        out.append({"name": lcp.name, "n": lcp.n, "low": name, "bi": r.mvps,
+                    "oracle": oracle_high_mvps(A, L, np.asarray(lcp.b), TOL),
+                    "emvps": r.emvps, "solved": bool(r.solved), "mono": mono.mvps,
+                    "bb": bb.mvps})
     return out
+
+
+def row(d: dict) -> str:
+    return (f"| {d['name']} | {d['n']} | {d['low']} | {d['bi']} | {d['oracle']} | "
+            f"{'yes' if d['bi'] <= d['oracle'] else 'no'} | {d['emvps']:.2f} | "
+            f"{'yes' if d['solved'] else 'NO'} | {d['mono']} | {d['bb']} |")
 
 
 def main() -> None:
@@ -93,8 +100,8 @@ def main() -> None:
         for scene in args.scenes:
             for seed in args.seeds:
                 lcp, A, lows = heldout_lcp(scene, args.m, seed, args.p, args.pack, args.error)
-                for line in rows(lcp, A, lows):
-                    print(line, flush=True)
+                for d in measure(lcp, A, lows):
+                    print(row(d), flush=True)
 
 
 if __name__ == "__main__":
