@@ -129,7 +129,8 @@ class DiagonalBFGS:
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
         mask = self._active.mask
-        vectors = [s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)]
+        new = self._W[2 * slot:2 * slot + 2]            # s and y, as stored
+        vectors = [new, new * mask]
         recurrence = g is not None and prev is not None and prev[1].shape[0] <= used \
             and np.array_equal(g, prev[0] + y)
         if g is not None and not recurrence:
@@ -145,7 +146,7 @@ class DiagonalBFGS:
         self._active.gram = A
         self._order.append(slot)
         self._coef = None
-        if len(vectors) == 5:
+        if len(vectors) == 3:
             self._Wg = (np.array(g_in, dtype=np.float64), g[:, 4].copy())
         elif recurrence and prev is not None:
             Wg = g[:, 1].copy()
