@@ -310,7 +310,7 @@ def _as_mono(task: LevelTask, z: np.ndarray, G: np.ndarray, it: int, st: _BiStat
 
 
 def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
-              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float,
+              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float, *,
               products: Optional[IterateProducts] = None):
     """The paper's initialisation (Bi-PQN algorithm, line 1): the low-fidelity LCP first.
 
