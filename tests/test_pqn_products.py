@@ -135,19 +135,6 @@ def test_gradient_products_come_from_the_pair_update(monkeypatch):
     assert calls == [4] * 5                  # the Gram rows only: no product with g
 
 
-def test_pair_storage_grows_without_copying_the_pairs():
-    """Full memory: 40 pairs are written into one reserved array (the doubling copied the
-    pairs at 4, 8, 16 and 32 pairs)."""
-    n = 500
-    _, S, Y = _pairs(n, 40, seed=4)
-    model = DiagonalBFGS(n)
-    model.add_pair(S[0], Y[0])
-    buffer = model._W
-    for s, y in zip(S[1:], Y[1:]):
-        model.add_pair(s, y)
-    assert model._W is buffer and model.rank == 40
-
-
 def test_secant_memory_of_a_model_holds_its_pairs_as_read_only_views():
     n = 50
     _, S, Y = _pairs(n, 5, seed=5)

@@ -40,11 +40,6 @@ __all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "Pairs", "ModelPairs"
            "bb2_scale", "free_secant_pair"]
 
 
-#: Address space reserved at once for a model's pairs (its pages are used only as pairs are
-#: written; :meth:`DiagonalBFGS._grow`).
-RESERVE_BYTES = 1 << 31
-
-
 class DiagonalBFGS:
     """BFGS model ``B = d I + U U' - V V'`` from stored secant pairs, kept in compact form.
 
@@ -165,21 +160,8 @@ class DiagonalBFGS:
         return row_products(self._W[:m], (g,))[:, 0]
 
     def _grow(self, slots: int) -> None:
-        """Room for ``slots`` pairs at least, and up to :data:`RESERVE_BYTES` at once.
-
-        ``np.empty`` of a large array only reserves address space: a page costs memory
-        (and the kernel's time to zero it) when a pair is first written into it. So
-        reserving room for many pairs at once costs what the pairs written cost, and
-        saves the copies (and the zeroing of every intermediate buffer) of growing by
-        doubling: at n = 1e5 the doubling took a fifth of Mono-PQN's work outside products.
-        Where the reservation is refused (strict overcommit), the array grows as asked.
-        """
-        reserve = min(self.memory, max(slots, RESERVE_BYTES // (16 * max(self.n, 1))))
-        try:
-            W = np.empty((2 * reserve, self.n))   # rows are read only once written
-            slots = reserve
-        except MemoryError:
-            W = np.empty((2 * slots, self.n))
+        """Room for ``slots`` pairs (the callers double it: amortised one copy of the pairs)."""
+        W = np.empty((2 * slots, self.n))      # rows are read only once written
         W[:self._W.shape[0]] = self._W
         self._W = W
 
