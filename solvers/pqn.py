@@ -21,13 +21,32 @@ MVPs per iteration
 * ``multi-pqn``: as ``bi-pqn`` with the subproblem solved by Bi-PQN on the next
   cheaper operator, recursively.
 
+Products of the iterate
+-----------------------
+``products=iterate`` (default ``paper``) applies the high-fidelity operator to the
+new point ``x^ = x + p`` instead of the direction ``p`` and forms ``A p = A x^ - A x``
+by difference (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, where the
+accuracy argument is): the same number of products, but an operator with Krylov
+recycling (the boundary-integral mobility) solves products of converging inputs in
+few new directions. Bi-PQN's low products (the low start and the subproblems) are
+then of points too, when the low's accuracy is declared or it is a matrix. Once the
+difference's error bound passes ``difference_tol`` of ``||A p||`` the solve goes
+back to products of ``p``; every convergence claim is confirmed by a counted
+product (of the final iterate: cheap with recycling). Measured in
+docs/benchmarks.md, "Products of the iterate".
+
 Work outside products
 ---------------------
 O(n r) per iteration (r secant pairs kept): the BFGS models are kept in compact
 form (pairs and their Gram matrices, :class:`~lcpbench.toolkit.quasinewton.DiagonalBFGS`),
 the weighted prox builds its Newton system from Gram matrices
 (:func:`~lcpbench.toolkit.prox.compact_prox`), and a Bi-PQN subproblem continues the
-previous one's model corrected by the rank-two change of ``B``. The solvers' own dense
+previous one's model corrected by the rank-two change of ``B``. Per iteration the pairs
+are swept once by the pair update (the new Gram rows; the two-loop's ``W g`` follows
+from them by the recurrence ``g + y``), once to form the quasi-Newton point with the
+prox's start (:func:`~lcpbench.toolkit.prox.shifted_point`) and once per Newton step
+of the prox; the secant memory handed back
+is one copy of the pairs' rows. The solvers' own dense
 algebra runs with BLAS on one thread, entered once per solve; the products (the LCP's
 operators) run with the thread counts in force when the solve began.
 """
@@ -47,7 +66,14 @@ from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
 from lcpbench.toolkit.pqn_bilevel import bi_level, low_start
-from lcpbench.toolkit.pqn_levels import BiOptions, Counters, MonoOptions, Pairs, mono_level
+from lcpbench.toolkit.pqn_levels import (
+    BiOptions,
+    Counters,
+    IterateProducts,
+    MonoOptions,
+    Pairs,
+    mono_level,
+)
 from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
 
 __all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
@@ -114,12 +140,12 @@ def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
     st.check(ctx.n, solver)
     ctx.info["carried_pairs"] = st.rank
     S, Y = st.pairs()
-    return Pairs(S, Y, [None] * len(S)) if S else None
+    return Pairs(S, Y, [None] * len(S)) if len(S) else None
 
 
 def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveResult:
     ctx.info.update(counters.as_dict())
-    memory = SecantMemory.from_pairs(pairs.S, pairs.Y, ctx.n)
+    memory = pairs.memory(ctx.n)
     ctx.info["secant_memory"] = memory
     if out.reason == "unbounded":
         if out.ray is not None:         # the top level's p and A p: the framework checks them
@@ -132,6 +158,30 @@ def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveR
                           "no descent direction: the projected gradient vanishes to round-off",
                           state=memory)
     return ctx.finish(out.z, out.G, state=memory)
+
+
+def _iterate_products(ctx: SolverContext, p: MonoOptions):
+    """``(products, stop)``: the :class:`IterateProducts` of ``products=iterate`` (None
+    for ``paper``) and the stop test, which then confirms every claim by a counted product.
+
+    The difference needs the operator's accuracy: declared (``Operator(rtol=)``),
+    a float64 matrix, or measured by the framework (uncounted); an operator of
+    unknown accuracy gets products of the direction (``info['products']`` says so).
+    """
+    stop = ConfirmedReport(ctx)
+    ctx.info["products"] = p.products
+    if p.products != "iterate":
+        return None, stop
+    acc = ctx.operator_accuracy()
+    if not acc.known:
+        ctx.info["products"] = "paper (the operator's accuracy is unknown)"
+        return None, stop
+
+    def confirmed(z, G):       # every claim by a counted product: G is made of differences
+        return stop(z, G, always=True)
+
+    confirmed.exact = stop.exact               # type: ignore[attr-defined]
+    return IterateProducts(ctx.b, acc.rtol, p.difference_tol), confirmed
 
 
 def _start(ctx: SolverContext):
@@ -171,7 +221,7 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     """
     x, g = _start(ctx)
     counters = Counters()
-    stop = ConfirmedReport(ctx)
+    products, stop = _iterate_products(ctx, p)
     seed = _carried(ctx, "mono-pqn")
     pair = free_secant_pair(x, g, ctx.b) if p.free_pair else None
     if pair is not None:
@@ -181,7 +231,9 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
         out = mono_level(apply, x, g, stop, sys.maxsize, p, counters, seed=seed,
-                         exact_gradient=exact)
+                         exact_gradient=exact, products=products)
+    if products is not None:
+        ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
     return _finish(ctx, out, counters, out.pairs)
 
@@ -208,7 +260,12 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     counters = Counters()
     lows = [with_current_blas_threads(ctx.low[k].matvec) for k in names]
     carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
-    stop = ConfirmedReport(ctx)
+    products, stop = _iterate_products(ctx, p)
+    if products is not None and len(names) == 1:
+        # the low's products of points too, where its accuracy is declared or it is a matrix
+        low = ctx.low[names[0]]
+        products.low_rtol = low.rtol if low.rtol is not None else (0.0 if low.explicit
+                                                                   else None)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
     from_low = p.start == "low"
@@ -217,13 +274,16 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
         if from_low:
             x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, exact,
-                                                       floor)
+                                                       floor, products=products)
         else:
             g = exact(x)
         out, state = bi_level(apply, lows, x, g, stop, sys.maxsize, p,
                               counters, state=level_state, warm_start=not from_low,
                               exact_gradient=exact, floor=floor, model_error=rho,
-                              prev_residual=r_prev, fallback_seed=carried)
+                              prev_residual=r_prev, fallback_seed=carried,
+                              products=products)
+    if products is not None:
+        ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
     return _finish(ctx, out, counters, out.pairs)

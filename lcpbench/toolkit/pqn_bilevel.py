@@ -20,6 +20,7 @@ from lcpbench.toolkit.pqn_levels import (
     HANDOFF,
     BiOptions,
     Counters,
+    IterateProducts,
     LevelOutcome,
     LevelTask,
     forcing_term,
@@ -48,7 +49,8 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
              exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
              floor: float = 0.0, model_error: Optional[float] = None,
              prev_residual: Optional[float] = None, adaptive: bool = True,
-             fallback_seed: Optional[Pairs] = None) -> tuple[LevelOutcome, dict]:
+             fallback_seed: Optional[Pairs] = None,
+             products: Optional[IterateProducts] = None) -> tuple[LevelOutcome, dict]:
     """Algorithm bpqn (Bi-PQN) with ``B^(0) = lows[0]``; deeper ``lows`` solve the subproblems.
 
     Each outer iteration solves the paper's PQN subproblem,
@@ -89,6 +91,10 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     which they would make less accurate than ``lows[0]`` alone for a good
     low fidelity, and where each would cost a product with ``lows[0]``.
 
+    ``products``: the outer level's high products are of the new point
+    (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, ``products=iterate``),
+    also in its Mono-PQN fallback steps and after a handoff.
+
     Warm start (``warm_start=True``, the old start kept as ``start=high``):
     the first subproblem is solved to ``warm_rtol``. The paper's start is
     :func:`low_start`, whose answer comes in through ``state``.
@@ -100,7 +106,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     state : dict
         ``{"pairs": Pairs, "inner": Pairs|dict}`` to continue later.
     """
-    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
+    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient, products)
     state = state or {}
     hi_pairs: Pairs = state.get("pairs") or Pairs()
     diag = DiagonalBFGS(z.shape[0], memory=opts.memory or None, scaling=opts.scaling,
@@ -109,6 +115,9 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
     st = _BiState(lows, diag, hi_pairs, state.get("inner"), rho=model_error,
                   r_prev=prev_residual, first=warm_start, floor=floor, adaptive=adaptive)
+    if products is not None and products.low_rtol is not None and len(lows) == 1 \
+            and state.get("Lx") is not None:
+        st.Lx, st.Lx_err, st.low_rtol = state["Lx"], state["Lx_err"], products.low_rtol
     if model_error is not None and model_error > opts.model_tol:
         # judged useless before the first step: no low product to rebuild the model
         counters.decisions.append("mono:model")
@@ -129,7 +138,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
         p, pending["Bp"], pending["inner"] = _outer_direction(task, st, zz, GG)
         return p
 
-    def update(p: np.ndarray, Qp: np.ndarray, eta: float) -> None:
+    def update(p: np.ndarray, Qp: np.ndarray, eta: float, G: np.ndarray) -> None:
         _update_models(task, st, _Step(p, pending["Bp"], Qp, eta), pending["inner"])
 
     z, G, reason, it, ray = iterate_level(task, z, G, direction, update)
@@ -153,6 +162,12 @@ class _BiState:
     streak: int = 0                         # consecutive fallbacks
     floor: float = 0.0
     adaptive: bool = True
+    #: products=iterate with one low: ``lows[0] x`` at the outer iterate, its error bound,
+    #: the low's accuracy and the error bound of the last subproblem's final ``lows[0] z``
+    Lx: Optional[np.ndarray] = None
+    Lx_err: float = 0.0
+    low_rtol: Optional[float] = None
+    inner_err: Optional[float] = None
 
     @property
     def base(self) -> Callable:
@@ -200,10 +215,14 @@ def _outer_direction(task: LevelTask, st: _BiState, z: np.ndarray, G: np.ndarray
     def inner_stop(zz, GG):
         return kkt_abs(zz, GG) <= tol_in
 
+    sub = _low_points(st, model, z, G, opts)
     with np.errstate(over="ignore", invalid="ignore"):
-        inner, inner_new = _solve_sub(LevelTask(B, inner_stop, cap, opts, counters), st.lows, z, G,
-                                      st.inner_state)
+        inner, inner_new = _solve_sub(LevelTask(B, inner_stop, cap, opts, counters, products=sub),
+                                      st.lows, z, G, st.inner_state)
     counters.inner_iterations += inner.iterations
+    if sub is not None:
+        counters.low_iterate_products += sub.made
+        st.inner_err = sub.error
     p = inner.z - z
     Bp = inner.G - G
     ok = inner.reason != "unbounded" and inner.iterations > 0 and \
@@ -217,6 +236,25 @@ def _outer_direction(task: LevelTask, st: _BiState, z: np.ndarray, G: np.ndarray
     return p, Bp, inner_new
 
 
+def _low_points(st: _BiState, model: OperatorBFGS, x: np.ndarray, g: np.ndarray,
+                opts: BiOptions) -> Optional[IterateProducts]:
+    """The subproblem's products of points (``products=iterate``, one low fidelity whose
+    ``lows[0] x`` is tracked), else None.
+
+    The subproblem's gradient is ``G = B (z - x) + g`` with ``B = L + C`` (``L = lows[0]``,
+    ``C`` the exact low-rank correction), so ``L z = G - g + L x - C (z - x)`` is known at
+    every inner iterate and ``B p = L (z + p) - L z + C p``."""
+    if st.Lx is None or st.low_rtol is None:
+        return None
+    shift = st.Lx - g
+
+    def known(zz, GG):
+        return GG + shift - model.correction(zz - x)
+
+    return IterateProducts(None, st.low_rtol, opts.difference_tol, base=st.base, known=known,
+                           correction=model.correction, error=st.Lx_err, n=x.shape[0])
+
+
 def _update_models(task: LevelTask, st: _BiState, step: _Step, inner_new) -> None:
     """After a step: the model check, the BFGS updates of ``B`` and of the fallback model,
     and the subproblem's pairs carried with ``Y <- Y + (B_new - B_old) S``."""
@@ -228,6 +266,13 @@ def _update_models(task: LevelTask, st: _BiState, step: _Step, inner_new) -> Non
     corr = old_model.correction(p)
     b0p = st.base(p) if step.Bp is None else step.Bp - corr
     Bs = eta * (b0p + corr)
+    if st.Lx is not None:           # lows[0] x+ = lows[0] x + eta lows[0] p, and its error
+        if step.Bp is None or st.inner_err is None:
+            st.Lx_err += eta * (st.low_rtol or 0.0) * float(np.linalg.norm(b0p))
+        else:                       # (1 - eta) lows[0] x + eta lows[0] z_inner
+            st.Lx_err = abs(1.0 - eta) * st.Lx_err + eta * st.inner_err
+        st.Lx = st.Lx + eta * b0p
+        st.inner_err = None
     # the model check: the new high gradient is known; how well did B predict it?
     st.rho = model_check(step.Qp, b0p + corr)
     counters.model_errors.append(st.rho)
@@ -257,14 +302,16 @@ def _as_mono(task: LevelTask, z: np.ndarray, G: np.ndarray, it: int, st: _BiStat
     task.counters.abandoned_low = True
     out = mono_level(task.apply, z, G, task.stop, task.max_iter - it, task.opts, task.counters,
                      seed=Pairs(list(st.diag.S), list(st.diag.Y)),
-                     exact_gradient=task.exact_gradient, checked=checked)
+                     exact_gradient=task.exact_gradient, checked=checked,
+                     products=task.products)
     task.counters.mono_fallbacks += out.iterations
     return (LevelOutcome(out.z, out.G, out.reason, it + out.iterations, out.pairs, out.ray),
             st.carried())
 
 
 def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counters: Counters,
-              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float):
+              exact_gradient: Callable[[np.ndarray], np.ndarray], floor: float, *,
+              products: Optional[IterateProducts] = None):
     """The paper's initialisation (Bi-PQN algorithm, line 1): the low-fidelity LCP first.
 
     ``min_{z>=0} 1/2 z' L z + b'z`` with ``L = lows[0]`` is solved from ``z``
@@ -297,9 +344,12 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
     def stop(zz, GG):
         return kkt_abs(zz, GG) <= tol
 
+    sub = None
+    if products is not None and products.low_rtol is not None and len(lows) == 1:
+        sub = IterateProducts(b, products.low_rtol, opts.difference_tol)
     with np.errstate(over="ignore", invalid="ignore"):
-        out, inner_state = _solve_sub(LevelTask(L, stop, opts.warm_max_iter, opts, counters),
-                                      lows, z, Gl, None)
+        out, inner_state = _solve_sub(LevelTask(L, stop, opts.warm_max_iter, opts, counters,
+                                                products=sub), lows, z, Gl, None)
     counters.inner_iterations += out.iterations
     if out.reason == "unbounded" or not (np.all(np.isfinite(out.z))
                                          and np.all(np.isfinite(out.G))):
@@ -313,6 +363,11 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
     counters.decisions.append("start:low")
     state = {"pairs": Pairs([z1], [Az], [Lz]) if np.any(z1) else Pairs(),
              "inner": inner_state, "model": OperatorBFGS(L, z.shape[0])}
+    if sub is not None:             # L z1 for the subproblems' products of points
+        counters.low_iterate_products += sub.made
+        state["Lx"] = Lz
+        state["Lx_err"] = sub.error if sub.error is not None else \
+            sub.rtol * float(np.linalg.norm(Lz))
     return z1, G1, state, rho, r_low
 
 
@@ -321,7 +376,7 @@ def _solve_sub(sub: LevelTask, lows: list, z: np.ndarray, G: np.ndarray, inner_s
     if len(lows) == 1:
         inner = mono_level(sub.apply, z, G, sub.stop, sub.max_iter, sub.opts, sub.counters,
                            seed=inner_state if isinstance(inner_state, Pairs) else None,
-                           memory=sub.opts.inner_memory)
+                           memory=sub.opts.inner_memory, products=sub.products)
         return inner, inner.pairs
     return bi_level(sub.apply, lows[1:], z, G, sub.stop, sub.max_iter, sub.opts, sub.counters,
                     state=inner_state if isinstance(inner_state, dict) else None,

@@ -34,7 +34,7 @@ from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Pairs, Rank2
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
 
 __all__ = ["Pairs", "Rank2", "MonoOptions", "BiOptions", "LevelOutcome", "Counters", "LevelTask",
-           "HANDOFF", "mono_level", "iterate_level", "pqn_direction", "optimal_step",
+           "IterateProducts", "HANDOFF", "mono_level", "iterate_level", "pqn_direction", "optimal_step",
            "model_check", "forcing_term"]
 
 
@@ -69,6 +69,26 @@ class MonoOptions(CheckedParams):
         With a nonzero warm start ``x0``, seed the BFGS memory with the free
         secant pair ``(x0 - 0, A x0 - A 0)``: ``A x0`` is known from the first
         gradient and ``A 0 = 0`` (as the authors' code does).
+    products : str
+        What the high-fidelity product of an iteration is applied to. ``paper``
+        (default): the direction, ``A p``, as in the paper. ``iterate``: the new
+        point ``x^ = x + p``, with ``A p = A x^ - A x`` by difference
+        (:class:`IterateProducts`): an operator that recycles Krylov directions
+        solves products of converging inputs in few new directions, and a new
+        direction ``p`` in nearly the cold number (docs/benchmarks.md, "Products of
+        the iterate"). Falls back to ``paper`` products once the difference is
+        too inaccurate (``difference_tol``), and every convergence claim is then
+        confirmed by a counted product.
+    difference_tol : float
+        ``products=iterate``: largest bound on the relative error of ``A p`` formed
+        by difference, ``(rtol ||A x^|| + e_x) / ||A p||`` with ``rtol`` the
+        operator's accuracy (:class:`IterateProducts`); products of ``p`` from the
+        iteration after the bound passes a tenth of it. Default 0.5: the
+        difference's error moves only the step length and the secant pair, never
+        the gradient (which stays as accurate as a product of the iterate), and the
+        bound is a worst case; on a 27-sphere lattice at p = 6 a limit of 0.1 switched
+        to directions two products before convergence (143 inner applications
+        against 127 with 0.5 or 0.9, the same MVPs).
     """
 
     memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
@@ -78,6 +98,8 @@ class MonoOptions(CheckedParams):
     prox_max_iter: Annotated[int, Bounds(ge=1)] = 100
     recompute_every: Annotated[int, Bounds(ge=0)] = 50   # 0 never recomputes
     free_pair: bool = True
+    products: Literal["paper", "iterate"] = "paper"
+    difference_tol: Annotated[float, Bounds(gt=0, lt=1)] = 0.5
 
 
 @dataclass(frozen=True)
@@ -156,6 +178,7 @@ class Counters:
     mono_fallbacks: int = 0
     recomputes: int = 0
     inner_iterations: int = 0
+    low_iterate_products: int = 0     # products=iterate: low products of points
     skipped_pairs: int = 0
     abandoned_low: bool = False
     model_errors: list = field(default_factory=list)
@@ -192,9 +215,13 @@ def pqn_direction(model: DiagonalBFGS, z: np.ndarray, G: np.ndarray, opts: MonoO
     direction exists (``z`` is stationary).
     """
     d, W, P, N, gram = model.compact()
-    y = z - model.apply_H(G)
-    zhat, info = compact_prox(y, d, W, P, N, gram, active=model.active, tol=opts.prox_tol,
-                              max_iter=opts.prox_max_iter)
+    shift = None
+    if model.rank:
+        # z - H G = (z - G/d) - W' c: the W' c part is formed inside the prox's first
+        # sweep over the pairs, and W G was computed in the sweep that stored the last pair
+        shift = -d * model.two_loop(model.products_with(G), d)
+    zhat, info = compact_prox(z - G / d, d, W, P, N, gram, active=model.active, shift=shift,
+                              tol=opts.prox_tol, max_iter=opts.prox_max_iter)
     counters.prox_newton_iters += info.newton_iters
     counters.prox_damped += info.damped
     counters.prox_fallbacks += int(info.fallback)
@@ -229,7 +256,125 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
-def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
+class IterateProducts:
+    """``A p`` as ``A (x + p) - A x``: the product of the new point, not of the direction.
+
+    PQN's product of an iteration is ``A p`` for the step ``p = x^ - x`` to the prox
+    point ``x^``. An operator that is an iterative solve with Krylov recycling
+    (the boundary-integral mobility) solves a product whose input is close to
+    earlier inputs in few new directions; the directions ``p`` are new each
+    iteration, the points ``x^`` converge. So the product is applied to ``x^``
+    and ``A p = A x^ - A x``, ``A x`` being known (``G - b`` at the top level): one
+    product per iteration as before.
+
+    Accuracy. A product of an operator of relative accuracy ``rtol`` (its declared
+    ``Operator(rtol=)``, or the framework's measurement; at least ``16 eps sqrt(n)``
+    for rounding) is off by up to ``rtol ||A v||``. ``A x^`` carries such an error,
+    and the known ``A x`` carries ``e_x``: after a step ``x+ = x + eta p``, ``A x+ =
+    (1 - eta) A x + eta A x^``, so ``e_x+ = |1 - eta| e_x + eta rtol ||A x^||``
+    (tracked, :meth:`stepped`; about one product's error while ``eta <= 2``). The
+    difference is off by up to ``e = rtol ||A x^|| + e_x``, while a product of
+    ``p`` is off by ``rtol ||A p||``: relative to ``||A p||`` the difference's
+    error ``e / ||A p||`` grows as the iterates converge (``p -> 0`` while ``A x``
+    does not). The step length and the secant pair ``(eta p, eta A p)`` tolerate a
+    small relative error (the model only preconditions; each step is measured along
+    ``p``; the gradient ``G + eta A p = (1 - eta) A x + eta A x^ + b`` is as accurate
+    as a product of the iterate whatever the difference's error), so the difference is
+    used while ``e <= difference_tol ||A p||``. Once it
+    exceeds a tenth of that, the next step's would likely exceed it all: products of
+    ``p`` are made from the next iteration on (``switched``: the products of points
+    made until then). A difference already beyond ``difference_tol`` is replaced by
+    a product of ``p`` (one extra product, counted in ``direct``). The solver
+    confirms every convergence claim with a counted product.
+
+    Parameters
+    ----------
+    b : ndarray or None
+        The linear term: the known ``A x`` is ``G - b`` (ignored with ``known``).
+    rtol : float
+        Relative accuracy of one product.
+    tol : float
+        ``difference_tol``.
+    base : callable, optional
+        The operator applied to the point (default: the level's product).
+    known : callable, optional
+        ``known(x, G)``: ``base x`` at the level's iterate (default ``G - b``).
+    correction : callable, optional
+        Added to the difference: the level's product is ``base + correction`` (the
+        Bi-PQN subproblem's ``B = A_low + U U' - V V'``, whose low-rank part is exact).
+    error : float, optional
+        Error bound of the first ``known`` (default ``rtol ||A x||``).
+    low_rtol : float, optional
+        The top level's note for Bi-PQN: the low fidelity's accuracy when its
+        products may be of points too (None: they are of directions).
+    """
+
+    def __init__(self, b: Optional[np.ndarray], rtol: float, tol: float, *,
+                 base: Optional[Callable] = None, known: Optional[Callable] = None,
+                 correction: Optional[Callable] = None, error: Optional[float] = None,
+                 low_rtol: Optional[float] = None, n: Optional[int] = None):
+        size = n if n is not None else (b.shape[0] if b is not None else 1)
+        self.b, self.tol = b, tol
+        self.rtol = max(float(rtol), 16 * np.finfo(float).eps * np.sqrt(max(size, 1)))
+        self.base, self.known, self.correction = base, known, correction
+        self.error = error            # bound on the error of the known A x (None: rtol ||A x||)
+        self.low_rtol = low_rtol
+        self.on = True
+        self.made = 0                 # products of points
+        self.direct = 0               # differences replaced by a product of p
+        self.switched: Optional[int] = None   # products of points made before the switch
+        self.errors: list = []        # e / ||A p|| of each difference
+        self._last: Optional[float] = None    # rtol ||A x^|| (or ||Q p||) of the last product
+        self._point = False                   # the last product was of a point
+
+    def __call__(self, apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray
+                 ) -> np.ndarray:
+        """``Q p`` for the step from ``z`` (gradient ``G``) along ``p``."""
+        if not self.on:
+            return self._direct(apply, p)
+        Az = self.known(z, G) if self.known is not None else G - self.b
+        Ax_hat = (self.base or apply)(z + p)
+        Ap = Ax_hat - Az
+        self.made += 1
+        if self.error is None:
+            self.error = self.rtol * float(np.linalg.norm(Az))
+        self._last = self.rtol * float(np.linalg.norm(Ax_hat))
+        size = float(np.linalg.norm(Ap))
+        rel = (self._last + self.error) / size if size > 0 else float("inf")
+        self.errors.append(rel)
+        if not rel <= 0.1 * self.tol:
+            self.on, self.switched = False, self.made
+        if not rel <= self.tol:
+            self.direct += 1
+            return self._direct(apply, p)
+        self._point = True
+        return Ap + self.correction(p) if self.correction is not None else Ap
+
+    def _direct(self, apply: Callable, p: np.ndarray) -> np.ndarray:
+        """The paper's product ``Q p`` (its error ``rtol ||Q p||`` kept for :meth:`stepped`)."""
+        Qp = apply(p)
+        self._point, self._last = False, self.rtol * float(np.linalg.norm(Qp))
+        return Qp
+
+    def stepped(self, eta: float) -> None:
+        """The step ``x + eta p`` was taken: the known ``A x``'s error bound follows."""
+        if self.error is None or self._last is None:
+            return
+        if self._point:      # A x+ = (1 - eta) A x + eta A x^
+            self.error = abs(1.0 - eta) * self.error + eta * self._last
+        else:                # A x+ = A x + eta A p
+            self.error += eta * self._last
+
+    def restart(self) -> None:
+        """The gradient was recomputed by a product of the iterate."""
+        self.error = None
+
+    def as_dict(self) -> dict:
+        return {"iterate_products": self.made, "iterate_direct": self.direct,
+                "iterate_switched": self.switched, "iterate_errors": list(self.errors)}
+
+
+def _step_along(task: LevelTask, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
     """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
 
     Returns ``((Qp, z_new, G_new, eta), "", None)``, or None with the reason the
@@ -238,10 +383,12 @@ def _step_along(apply: Callable, z: np.ndarray, G: np.ndarray, p: Optional[np.nd
     """
     if p is None:
         return None, "stationary", None
-    Qp = apply(p)
+    Qp = task.apply(p) if task.products is None else task.products(task.apply, z, G, p)
     z_new, G_new, eta = optimal_step(z, G, p, Qp)
     if z_new is None:
         return None, "unbounded", (p, Qp)
+    if task.products is not None:
+        task.products.stepped(eta)
     return (Qp, z_new, G_new, eta), "", None
 
 
@@ -250,7 +397,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
                opts: BiOptions, counters: Counters, *, seed: Optional[Pairs] = None,
                memory: Optional[int] = None,
                exact_gradient: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-               checked: bool = False) -> LevelOutcome:
+               checked: bool = False, products: Optional[IterateProducts] = None
+               ) -> LevelOutcome:
     """Algorithm pqn (Mono-PQN) on ``min_{z>=0} q(z)`` with Hessian product ``apply``.
 
     Parameters
@@ -274,6 +422,8 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
     checked : bool
         The caller has already tested ``stop`` at the start point (skip it once:
         a second report of the same iterate would look like stagnation).
+    products : IterateProducts, optional
+        Apply ``apply`` to the new point instead of the direction (top level only).
     """
     mem = opts.memory if memory is None else memory
     if seed is not None and seed.model is not None and \
@@ -284,10 +434,10 @@ def mono_level(apply: Callable[[np.ndarray], np.ndarray], z: np.ndarray, G: np.n
                              gamma=opts.gamma)
         if seed is not None and len(seed):
             model.set_pairs(seed.S, seed.Y)
-    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient)
+    task = LevelTask(apply, stop, max_iter, opts, counters, exact_gradient, products)
 
-    def update(p: np.ndarray, Qp: np.ndarray, eta: float) -> None:
-        if not model.add_pair(eta * p, eta * Qp):
+    def update(p: np.ndarray, Qp: np.ndarray, eta: float, G: np.ndarray) -> None:
+        if not model.add_pair(eta * p, eta * Qp, G):
             counters.skipped_pairs += 1
 
     z, G, reason, it, ray = iterate_level(task, z, G, lambda zz, GG: pqn_direction(
@@ -301,7 +451,8 @@ HANDOFF = "handoff"     # a direction rule's answer: finish the level as Mono-PQ
 def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Callable,
              update: Callable, checked: bool = False):
     """The loop every level runs: stop test, cap, ``direction(z, G)``, one product, step,
-    ``update(p, Qp, eta)``, and the periodic exact gradient against the recurrence's drift.
+    ``update(p, Qp, eta, G)`` (``G`` the new gradient), and the periodic exact gradient
+    against the recurrence's drift.
 
     ``direction`` returns the search direction, None (no descent direction:
     ``stationary``) or ``HANDOFF`` (the caller finishes otherwise). Returns
@@ -320,17 +471,19 @@ def iterate_level(task: LevelTask, z: np.ndarray, G: np.ndarray, direction: Call
         if isinstance(p, str):
             reason = p
             break
-        step, end, ray = _step_along(task.apply, z, G, p)
+        step, end, ray = _step_along(task, z, G, p)
         if step is None:
             reason = end
             break
         Qp, z, G, eta = step
         it += 1
-        update(p, Qp, eta)
+        update(p, Qp, eta, G)
         if task.exact_gradient is not None and opts.recompute_every and \
                 it % opts.recompute_every == 0:
             G = task.exact_gradient(z)
             task.counters.recomputes += 1
+            if task.products is not None:
+                task.products.restart()
     return z, G, reason, it, ray
 
 
@@ -345,6 +498,8 @@ class LevelTask:
     opts: BiOptions
     counters: Counters
     exact_gradient: Optional[Callable] = None
+    #: products of the new point (``products=iterate``, the top level only: it knows ``b``)
+    products: Optional[IterateProducts] = None
 
 
 def model_check(Qp: np.ndarray, Bp: np.ndarray) -> float:

@@ -44,7 +44,8 @@ import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-__all__ = ["weighted_prox", "compact_prox", "ActiveGram", "ProxInfo", "FALLBACK_ITERS"]
+__all__ = ["weighted_prox", "compact_prox", "shifted_point", "ActiveGram", "ProxInfo",
+           "FALLBACK_ITERS"]
 
 #: Steps of the projected-gradient fallback (each O(n r)): a cost cap of about 500 n r
 #: (with the momentum restart it converges in a few hundred steps where plain
@@ -117,7 +118,7 @@ def weighted_prox(y: np.ndarray, d: np.ndarray, U: np.ndarray, V: np.ndarray, *,
 
 def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
                  gram: Optional[np.ndarray] = None, *, active: Optional[ActiveGram] = None,
-                 tol: float = 1e-12, max_iter: int = 100,
+                 shift: Optional[np.ndarray] = None, tol: float = 1e-12, max_iter: int = 100,
                  fallback_iters: int = FALLBACK_ITERS) -> tuple[np.ndarray, ProxInfo]:
     """:func:`weighted_prox` for factors given by coefficients: ``U = W' P``, ``V = W' N``.
 
@@ -144,6 +145,11 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     active : ActiveGram, optional
         The active set and its Gram matrix of the previous evaluation with the
         same ``W`` (scalar ``d`` only); updated in place to this evaluation's.
+    shift : ndarray, shape (m,), optional
+        The point to project is ``y + D^-1 W' shift`` (a quasi-Newton step ``z - H g``
+        whose ``W'`` part is still in coefficients). It is formed in the same sweep over
+        ``W`` that computes ``W y`` and ``W Lam y`` for the Newton system, so the step
+        costs no sweep of its own.
     tol, max_iter, fallback_iters
         As for :func:`weighted_prox`.
 
@@ -155,11 +161,14 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     y = np.asarray(y, dtype=np.float64)
     info = ProxInfo()
     r1, r2 = P.shape[1], N.shape[1]
+    products = None
+    if shift is not None and W.shape[0]:
+        y, products = shifted_point(y, d, W, shift)
     if r1 + r2 == 0 or np.all(y >= 0):
         # Closed form: a diagonal metric separates; y >= 0 is its own prox.
         return np.maximum(y, 0.0), info
     newton = _NewtonSystem(y, d, W, P, N, gram)
-    t, converged = newton.solve(tol, max_iter, info, active)
+    t, converged = newton.solve(tol, max_iter, info, active, products)
     if converged:
         return np.maximum(t, 0.0), info
     info.fallback = True
@@ -175,17 +184,56 @@ _BLOCK = 8192
 def row_products(W: np.ndarray, vectors) -> np.ndarray:
     """``[W v_1, ..., W v_k]`` (shape ``(m, k)``) reading ``W`` once.
 
-    Matrix-vector products over blocks of :data:`_BLOCK` columns, so each block of
-    ``W`` is still in cache for the next vector: faster than ``k`` separate products,
-    and than BLAS's equivalent ``(m, n) x (n, k)`` product for small ``k``
-    (docs/benchmarks.md, "PQN work outside products").
+    ``vectors``: a sequence of vectors (length ``n``) or of ``(j, n)`` arrays of
+    ``j`` vectors each (rows of an existing array: no copy is made). One matrix
+    product per array and block of columns small enough to stay in cache
+    (:func:`_gemm_columns`): on 106 x 1e5 pairs and five vectors it took 7.7 ms of CPU
+    against 11.9 ms for five matrix-vector products per 8192-column block and 14 ms for
+    BLAS's product of the whole arrays (docs/benchmarks.md, "PQN work outside products:
+    the second round").
     """
-    out = np.zeros((W.shape[0], len(vectors)))
-    for j in range(0, W.shape[1], _BLOCK):
-        Wb = W[:, j:j + _BLOCK]
-        for i, v in enumerate(vectors):
-            out[:, i] += Wb @ v[j:j + _BLOCK]
+    m, n = W.shape
+    groups = [np.asarray(v, dtype=np.float64).reshape(-1, n) for v in vectors]
+    cols = np.cumsum([0] + [g.shape[0] for g in groups])
+    out = np.zeros((m, int(cols[-1])))
+    step = _gemm_columns(m)
+    for j in range(0, n, step):
+        Wb = W[:, j:j + step]
+        for g, a, b in zip(groups, cols[:-1], cols[1:]):
+            out[:, a:b] += Wb @ g[:, j:j + step].T
     return out
+
+
+def _gemm_columns(m: int) -> int:
+    """Columns of an ``m``-row array that make about 1 MB (a core's L2 cache)."""
+    return int(min(_BLOCK, max(512, (1 << 17) // max(m, 1))))
+
+
+def shifted_point(y0: np.ndarray, d, W: np.ndarray, c0: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``y = y0 + D^-1 W' c0`` with ``[W y, W y_+]`` (shape ``(m, 2)``), in one sweep over ``W``.
+
+    Each block of columns of ``W`` is read from memory once and used three times while
+    it is in cache: for ``y`` on the block, then its products with ``y`` and with
+    ``max(y, 0)`` (the Newton system's ``W y`` and ``W Lam y`` at the start point, whose
+    active set is ``y > 0``).
+    """
+    n = y0.shape[0]
+    y = np.empty(n)
+    out = np.zeros((W.shape[0], 2))
+    scalar = np.ndim(d) == 0
+    dv = d if scalar else np.broadcast_to(np.asarray(d, dtype=np.float64), (n,))
+    step = _gemm_columns(W.shape[0])
+    pair = np.empty((2, step))
+    for j in range(0, n, step):
+        Wb = W[:, j:j + step]
+        k = Wb.shape[1]
+        yb = pair[0, :k]
+        np.add(y0[j:j + step], (c0 @ Wb) / (dv if scalar else dv[j:j + step]), out=yb)
+        np.maximum(yb, 0.0, out=pair[1, :k])
+        out += Wb @ pair[:, :k].T
+        y[j:j + step] = yb
+    return y, out
 
 
 @dataclass
@@ -275,13 +323,15 @@ class _NewtonSystem:
             return self._rows(act), 0
         return self.G - self._rows(np.flatnonzero(~mask)), 0
 
-    def start(self, mask, cache: Optional[ActiveGram]):
-        """``(mask, M, h, flips)`` at the start, from the cached active set if it fits."""
+    def start(self, mask, cache: Optional[ActiveGram], products=None):
+        """``(mask, M, h, flips)`` at the start, from the cached active set if it fits;
+        ``products`` is ``[W y, W Lam y]`` if already known (:func:`shifted_point`)."""
         if cache is not None and cache.gram.shape == self.G.shape:
             M, flips = self._gram_of(mask, (cache.mask, cache.gram), cache.flips)
         else:
             M, flips = self._gram_of(mask, None, 0)
-        Wy = row_products(self.W, (self.y, np.where(mask, self.y, 0.0)))
+        Wy = products if products is not None else \
+            row_products(self.W, (self.y, np.where(mask, self.y, 0.0)))
         self.Wy = Wy[:, 0]
         return mask, M, Wy[:, 1], flips
 
@@ -301,7 +351,12 @@ class _NewtonSystem:
     def point(self, a):
         """``t`` at ``a`` (one pass over ``W``)."""
         c = self.Qc @ a[self.r1:] - self.P @ a[:self.r1]
-        return self.y + (self.W.T @ c) / self.d, c
+        if self.scalar:          # scale the m coefficients, not the n entries
+            t = (c / self.d) @ self.W
+        else:
+            t = (c @ self.W) / self.d
+        t += self.y
+        return t, c
 
     def residual(self, a, c, act):
         M, h = act[1], act[2]
@@ -323,7 +378,7 @@ class _NewtonSystem:
 
     # ------------------------------------------------------------------ Newton
     def solve(self, tol: float, max_iter: int, info: ProxInfo,
-              cache: Optional[ActiveGram] = None):
+              cache: Optional[ActiveGram] = None, products: Optional[np.ndarray] = None):
         """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root.
 
         ``cache`` (scalar ``d`` only) starts the active-set Gram matrix and
@@ -332,7 +387,7 @@ class _NewtonSystem:
         y = self.y
         a = np.zeros(self.r1 + self.Qc.shape[1])
         t = y
-        act = self.start(t > 0, cache if self.scalar else None)
+        act = self.start(t > 0, cache if self.scalar else None, products)
         Lv = self.residual(a, np.zeros(self.W.shape[0]), act)
         scale = 1.0 + np.linalg.norm(y)
         res = np.linalg.norm(Lv)

@@ -15,7 +15,8 @@ PQN solvers:
 * :class:`OperatorBFGS` — ``B0`` a (low-fidelity) operator: the Bi-PQN model
   ``B = A_low + U U' - V V'`` (the paper's bi-fidelity quasi-Newton model).
 
-:class:`SecantMemory` is the pairs a PQN solve hands back and takes as a warm
+:class:`SecantMemory` (defined in :mod:`lcpbench.toolkit.pqn_memory`, re-exported here) is
+the pairs a PQN solve hands back and takes as a warm
 start (``result.state``, ``state=``), with their mapping onto another LCP's
 unknowns (time stepping with a changing contact set).
 
@@ -32,166 +33,11 @@ from typing import Optional
 
 import numpy as np
 
+from lcpbench.toolkit.pqn_memory import SecantMemory, _accept, bb2_scale, free_secant_pair
 from lcpbench.toolkit.prox import ActiveGram, row_products
 
 __all__ = ["DiagonalBFGS", "OperatorBFGS", "SecantMemory", "Pairs", "ModelPairs", "Rank2",
            "bb2_scale", "free_secant_pair"]
-
-
-def bb2_scale(s: np.ndarray, y: np.ndarray) -> float:
-    """Barzilai-Borwein (BB2) step ``s'y / y'y`` (inverse curvature estimate)."""
-    yy = float(y @ y)
-    return float(s @ y) / yy if yy > 0 else 1.0
-
-
-def free_secant_pair(x: np.ndarray, w: np.ndarray, b: np.ndarray
-                     ) -> Optional[tuple[np.ndarray, np.ndarray]]:
-    """The secant pair ``(x - 0, A x - A 0)`` a warm start gives for free.
-
-    With ``w = A x + b`` already computed, ``A x = w - b`` and ``A 0 = 0`` needs
-    no product, so ``(s, y) = (x, w - b)`` is a secant pair of ``A`` at no cost
-    (the authors' code seeds its quasi-Newton memory and BB-PGD's first step
-    with it). None when ``x = 0`` or the pair has no positive curvature.
-    """
-    if not np.any(x):
-        return None
-    y = w - b
-    return (x, y) if _accept(x, y, 1e-12) else None
-
-
-class SecantMemory:
-    """Secant pairs ``y_i = A s_i`` of one LCP, oldest first: a PQN solver's warm-start memory.
-
-    The PQN solvers hand their final pairs back as ``result.state`` (also
-    ``result.info['secant_memory']``) and start their model from the pairs of
-    ``state=`` (``lcpbench.solve(..., state=memory)``). Row ``l`` of ``S`` and
-    ``Y`` belongs to unknown ``l`` of the LCP (a contact, in a suspension).
-
-    Parameters
-    ----------
-    S, Y : array_like, shape (n, r)
-        Steps and their products with ``A``, one pair per column (a 1-D array
-        is one pair). Copied; must be finite and of the same shape.
-
-    Raises
-    ------
-    ValueError
-        Shapes differ, an array is not 1-D or 2-D, or an entry is not finite.
-    """
-
-    def __init__(self, S, Y):
-        S = np.array(S, dtype=np.float64)
-        Y = np.array(Y, dtype=np.float64)
-        S = S[:, None] if S.ndim == 1 else S
-        Y = Y[:, None] if Y.ndim == 1 else Y
-        if S.ndim != 2 or S.shape != Y.shape:
-            raise ValueError(f"secant memory: S has shape {S.shape} and Y {Y.shape}; give two "
-                             "arrays of the same shape (n, r), one pair y = A s per column")
-        if not (np.all(np.isfinite(S)) and np.all(np.isfinite(Y))):
-            raise ValueError("secant memory: S or Y has non-finite entries; pass finite pairs")
-        self.S, self.Y = S, Y
-
-    @classmethod
-    def from_pairs(cls, S: list, Y: list, n: int) -> SecantMemory:
-        """The memory of lists of pair vectors (oldest first) of length ``n``."""
-        if not S:
-            return cls(np.zeros((n, 0)), np.zeros((n, 0)))
-        return cls(np.column_stack(S), np.column_stack(Y))
-
-    @property
-    def n(self) -> int:
-        """Unknowns of the LCP the pairs belong to."""
-        return int(self.S.shape[0])
-
-    @property
-    def rank(self) -> int:
-        """Number of pairs."""
-        return int(self.S.shape[1])
-
-    def __len__(self) -> int:
-        return self.rank
-
-    def pairs(self) -> tuple[list, list]:
-        """``(S, Y)`` as lists of column vectors, oldest first."""
-        return list(self.S.T.copy()), list(self.Y.T.copy())
-
-    def check(self, n: int, solver: str) -> None:
-        """Raise a ``ValueError`` naming the mismatch unless the pairs have ``n`` rows."""
-        if self.n != n:
-            raise ValueError(f"{solver}: the secant memory (state=) has {self.n} rows but the "
-                             f"LCP has n = {n} unknowns; map it to this LCP's unknowns first "
-                             "(SecantMemory.remap) or pass state=None")
-
-    def remap(self, index, min_kept: float = 0.5,
-              curvature_tol: float = 1e-12) -> SecantMemory:
-        """The pairs moved to another LCP's unknowns, row ``l`` taken from old row ``index[l]``.
-
-        Made for a changed contact set: ``index[l]`` is the previous position of
-        new contact ``l``, or ``-1`` for a new contact (row 0 in ``S`` and ``Y``).
-        The moved ``y`` is only an approximation of ``A_new s``: it lacks the
-        coupling of new contacts and of vanished ones, and ``A`` itself moved
-        with the particles. A pair is therefore kept only while it still says
-        something about the new operator:
-
-        * at least ``min_kept`` of ``||s||^2`` and of ``||y||^2`` is on contacts
-          that survive (a step made mostly along vanished contacts is
-          dropped: its ``y`` would be mostly coupling that no longer exists);
-        * the moved pair has positive curvature, ``s'y > curvature_tol ||s|| ||y||``,
-          the test every BFGS update applies, so the model stays positive definite.
-
-        The solver's model only preconditions: every step is still measured with
-        the new ``A`` (one counted product), so an inexact pair costs
-        iterations, never correctness. The pairs are kept rather than rescaled
-        or dropped because that measured best: on the lattice simulations
-        (docs/benchmarks.md, "Quasi-Newton memory across time steps") every
-        mapped pair halved Mono-PQN's MVPs per step, keeping only the newest
-        pairs gained less, and the share threshold made no difference there
-        (it guards contact sets that change more than a packing cluster's).
-
-        Parameters
-        ----------
-        index : array_like of int, shape (n_new,)
-            Old row of each new unknown, ``-1`` where there is none.
-        min_kept : float
-            Share of a pair's norms that must survive the mapping (0 keeps
-            every pair that passes the curvature test, 1 only pairs entirely on
-            surviving contacts).
-        curvature_tol : float
-            Threshold of the curvature test.
-
-        Returns
-        -------
-        SecantMemory
-            With ``n_new`` rows and the surviving pairs, oldest first.
-        """
-        index = np.asarray(index, dtype=np.intp).reshape(-1)
-        if index.size and (index.max() >= self.n or index.min() < -1):
-            raise ValueError(f"remap: index entries must be -1 or rows 0..{self.n - 1} of the "
-                             f"memory, got {index.min()}..{index.max()}")
-        known = index >= 0
-        S = np.zeros((index.size, self.rank))
-        Y = np.zeros((index.size, self.rank))
-        S[known] = self.S[index[known]]
-        Y[known] = self.Y[index[known]]
-        keep = []
-        for i in range(self.rank):
-            s, y = S[:, i], Y[:, i]
-            s0, y0 = float(self.S[:, i] @ self.S[:, i]), float(self.Y[:, i] @ self.Y[:, i])
-            if s0 <= 0 or y0 <= 0:
-                continue
-            if float(s @ s) < min_kept * s0 or float(y @ y) < min_kept * y0:
-                continue
-            if _accept(s, y, curvature_tol):
-                keep.append(i)
-        return SecantMemory(S[:, keep], Y[:, keep])
-
-    def __repr__(self) -> str:
-        return f"SecantMemory(n={self.n}, pairs={self.rank})"
-
-
-def _accept(s: np.ndarray, y: np.ndarray, tol: float) -> bool:
-    sy = float(s @ y)
-    return np.isfinite(sy) and sy > tol * float(np.linalg.norm(s) * np.linalg.norm(y)) and sy > 0
 
 
 class DiagonalBFGS:
@@ -247,10 +93,20 @@ class DiagonalBFGS:
         self._coef: Optional[tuple] = None  # (d, P, N) for the current pairs
         #: the last prox's active set and W diag(mask) W' (kept up to date with W)
         self._active = ActiveGram(np.zeros(n, dtype=bool), np.zeros((0, 0)))
+        self._Wg: Optional[tuple] = None    # (g, W g) of the last add_pair's g
 
     # ------------------------------------------------------------------ pairs
-    def add_pair(self, s: np.ndarray, y: np.ndarray) -> bool:
-        """Store the secant pair ``(s, y)`` (``B s = y``); False if skipped."""
+    def add_pair(self, s: np.ndarray, y: np.ndarray, g: Optional[np.ndarray] = None) -> bool:
+        """Store the secant pair ``(s, y)`` (``B s = y``); False if skipped.
+
+        ``g`` (optional, the new gradient): its products with the pairs are kept for
+        :meth:`products_with` (the next direction's two-loop recursion needs them). When
+        ``g`` is the previous pair's ``g`` plus ``y`` (the PQN gradient recurrence
+        ``g + eta A p`` with ``y = eta A p``), they are ``W g_old + W y``, ``W y`` being
+        the new Gram column, so no product with ``g`` is made; otherwise ``W g`` is
+        computed in the same sweep over the pairs as the new Gram rows.
+        """
+        prev, self._Wg = self._Wg, None
         if not _accept(s, y, self.curvature_tol):
             self.skipped += 1
             return False
@@ -263,36 +119,65 @@ class DiagonalBFGS:
             if 2 * slot + 2 > self._W.shape[0]:
                 self._grow(min(max(self._W.shape[0], 4, slot + 1), self.memory))
         used = 2 * (max(self._order + [slot]) + 1)
+        self._grow_gram(used)
         self._W[2 * slot] = s
         self._W[2 * slot + 1] = y
         rows = self._W[:used]
         mask = self._active.mask
-        g = row_products(rows, (s, y, np.where(mask, s, 0.0), np.where(mask, y, 0.0)))
+        new = self._W[2 * slot:2 * slot + 2]            # s and y, as stored
+        vectors = [new, new * mask]
+        recurrence = g is not None and prev is not None and prev[1].shape[0] <= used \
+            and np.array_equal(g, prev[0] + y)
+        if g is not None and not recurrence:
+            vectors.append(g)
+        g_in, g = g, row_products(rows, vectors)
         self._gram[:used, 2 * slot:2 * slot + 2] = g[:, :2]
         self._gram[2 * slot:2 * slot + 2, :used] = g[:, :2].T
         A = self._active.gram
         if A.shape[0] < used:
             A = np.pad(A, (0, used - A.shape[0]))
-        A[:used, 2 * slot:2 * slot + 2] = g[:, 2:]
-        A[2 * slot:2 * slot + 2, :used] = g[:, 2:].T
+        A[:used, 2 * slot:2 * slot + 2] = g[:, 2:4]
+        A[2 * slot:2 * slot + 2, :used] = g[:, 2:4].T
         self._active.gram = A
         self._order.append(slot)
         self._coef = None
+        if len(vectors) == 3:
+            self._Wg = (np.array(g_in, dtype=np.float64), g[:, 4].copy())
+        elif recurrence and prev is not None:
+            Wg = g[:, 1].copy()
+            Wg[:prev[1].shape[0]] += prev[1]
+            Wg[2 * slot:2 * slot + 2] = (float(s @ g_in), float(y @ g_in))   # new rows
+            self._Wg = (np.array(g_in, dtype=np.float64), Wg)
         return True
 
+    def products_with(self, g: np.ndarray) -> np.ndarray:
+        """``W g`` over the rows of :meth:`compact`'s ``W``: kept from :meth:`add_pair` when
+        ``g`` is the vector it was given (compared entry by entry), else one sweep."""
+        m = 2 * (max(self._order) + 1) if self._order else 0
+        if self._Wg is not None and self._Wg[1].shape[0] == m and \
+                np.array_equal(self._Wg[0], g):
+            return self._Wg[1]
+        return row_products(self._W[:m], (g,))[:, 0]
+
     def _grow(self, slots: int) -> None:
+        """Room for ``slots`` pairs (the callers double it: amortised one copy of the pairs)."""
         W = np.empty((2 * slots, self.n))      # rows are read only once written
-        G = np.zeros((2 * slots, 2 * slots))
-        k = self._W.shape[0]
-        W[:k] = self._W
-        G[:k, :k] = self._gram
-        self._W, self._gram = W, G
+        W[:self._W.shape[0]] = self._W
+        self._W = W
+
+    def _grow_gram(self, rows: int) -> None:
+        """The Gram matrix's room for ``rows`` rows at least (doubling)."""
+        k = self._gram.shape[0]
+        if rows > k:
+            G = np.zeros((max(rows, 2 * k), max(rows, 2 * k)))
+            G[:k, :k] = self._gram
+            self._gram = G
 
     def trim(self, memory: int) -> None:
         """Keep the newest ``memory`` pairs (0 keeps all)."""
         if memory and len(self._order) > memory:
             del self._order[:-memory]
-            self._coef = None
+            self._coef = self._Wg = None
 
     def correct(self, u: np.ndarray, v: np.ndarray) -> None:
         """Pairs of the changed Hessian ``Q + u u' - v v'``: ``y_i <- y_i + u u's_i - v v's_i``.
@@ -302,6 +187,7 @@ class DiagonalBFGS:
         matrices corrected in ``O(r^2)``. Pairs that lose the curvature test are
         dropped (counted in ``skipped``), as :meth:`set_pairs` would.
         """
+        self._Wg = None
         if not self._order:
             return
         m = 2 * (max(self._order) + 1)
@@ -337,9 +223,13 @@ class DiagonalBFGS:
 
     def set_pairs(self, S: list, Y: list) -> None:
         """Replace the memory by the given pairs (curvature-checked, oldest first)."""
-        self._order, self._coef = [], None
+        self._order, self._coef, self._Wg = [], None, None
         for s, y in zip(S, Y):
             self.add_pair(s, y)
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(S, Y)`` as ``(r, n)`` arrays, one pair per row, oldest first (copies)."""
+        return self._W[[2 * k for k in self._order]], self._W[[2 * k + 1 for k in self._order]]
 
     @property
     def S(self) -> list:
@@ -540,6 +430,10 @@ class Pairs:
     def __len__(self) -> int:
         return len(self.S)
 
+    def memory(self, n: int) -> SecantMemory:
+        """The pairs as a :class:`SecantMemory` (one copy, row by row)."""
+        return SecantMemory.from_pairs(self.S, self.Y, n)
+
 
 class ModelPairs(Pairs):
     """The pairs a Mono-PQN model holds, read from it (copies made only when asked)."""
@@ -553,6 +447,12 @@ class ModelPairs(Pairs):
 
     def __len__(self) -> int:
         return self.model.rank if self.model is not None else 0
+
+    def memory(self, n: int) -> SecantMemory:
+        """The pairs as a :class:`SecantMemory` (one copy of the model's rows)."""
+        if self.model is None:
+            return SecantMemory.from_pairs([], [], n)
+        return SecantMemory.from_rows(*self.model.rows())
 
     def add(self, s, y, b0s=None) -> None:
         raise TypeError("ModelPairs are read-only; add pairs to the model")
