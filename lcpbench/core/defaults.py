@@ -22,3 +22,8 @@ SIMULATE_SOLVER = BASELINE_SOLVER
 EXAMPLE_PROBLEM = "random-spd"
 #: The scene of ``lcpbench simulate`` and ``lcpbench generate`` when none is named.
 EXAMPLE_SCENE = "lattice:m=3,model=rpy"
+
+
+PAPER_ONLINE_FAMILIES = {"Mono-PQN": "mono-pqn", "Bi-PQN": "bi-pqn"}
+"""The method paper's online solvers by the names of their solver families: the report sets
+the first measured solver of each family (``bi-pqn:low=p8f6e3``) beside the paper's row."""

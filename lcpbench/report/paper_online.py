@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_ONLINE_FAMILIES
+
 __all__ = ["PAPER_ONLINE", "beside_paper"]
 
 _H, _D = 3600.0, 86400.0
@@ -58,7 +60,7 @@ def _measured_row(row: pd.Series, baseline: str, mono: str | None, bi: str | Non
     return out
 
 
-def beside_paper(measured: pd.DataFrame, baseline: str = "bb-pgd") -> pd.DataFrame:
+def beside_paper(measured: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
     """The measured online table beside the paper's, one pair of rows per lattice size.
 
     Parameters
@@ -81,7 +83,7 @@ def beside_paper(measured: pd.DataFrame, baseline: str = "bb-pgd") -> pd.DataFra
     if measured is None or measured.empty:
         return pd.DataFrame(columns=COLUMNS)
     solvers = list(measured.attrs.get("solvers") or [])
-    mono, bi = _first(solvers, "mono-pqn"), _first(solvers, "bi-pqn")
+    mono, bi = (_first(solvers, PAPER_ONLINE_FAMILIES[k]) for k in ("Mono-PQN", "Bi-PQN"))
     rows, seen = [], set()
     for _, row in measured.iterrows():
         m = int(row["M"] ** (1 / 3) + 0.5) if np.isfinite(row.get("M", np.nan)) else None
