@@ -6,8 +6,10 @@
 # SCENE=lattice LOW=p4 gives the packed 0.1a scene with the paper's own online low (BIM p = 4
 # at eps 1e-8).
 #
-#   bash sweeps/online-paper.sh [OUT] [STEPS]          # default reports/online-paper, 100 steps
-#   LATTICES=5 SEPARATE=1 bash sweeps/online-paper.sh  # the 5x5x5 lattice, one solver per process
+#   bash sweeps/online-paper.sh [OUT] [STEPS]          # default reports/online-paper, 100 steps,
+#                                                      # lattices 3x3x3, 4x4x4 and 5x5x5
+#   LATTICES=6 SEPARATE=1 bash sweeps/online-paper.sh  # the 6x6x6 lattice, one solver per process
+#   SOLVERS="bb-pgd mono-pqn:products=iterate" bash sweeps/online-paper.sh   # other solvers
 #   SCENE=lattice LOW=p4 bash sweeps/online-paper.sh reports/online-p4 100
 #
 # Every (lattice, solver) simulation is resumable: rerunning the same command continues each
@@ -16,18 +18,23 @@
 # under the same machine load. `lcpbench report OUT` renders the online table and the E-MVP box
 # plots per lattice size; the measured table is in docs/benchmarks.md.
 #
-# The three simulations of one process hold three operators: 3 x 8.9 GB at m = 5 (measured
-# in its first steps), more than a 24 GB machine has. SEPARATE=1 runs one solver per process
-# instead, CHUNK (default 10) steps at a time, the three in turn, so each holds only its own
-# operator and all see the same load on average (not step by step); resuming works the same.
+# The simulations of one process hold one operator each (the previous step's is released
+# before the next is built; peak memory per simulation: docs/benchmarks.md). SEPARATE=1 runs
+# one solver per process instead, CHUNK (default 10) steps at a time, the solvers in turn, so
+# each holds only its own operator and all see the same load on average (not step by step);
+# resuming works the same.
 set -euo pipefail
 OUT=${1:-reports/online-paper}
 STEPS=${2:-100}
 SCENE=${SCENE:-paper-lattice}
 LOW=${LOW:-p8f6e3}
 CHUNK=${CHUNK:-10}
-SOLVERS=(bb-pgd mono-pqn "bi-pqn:low=${LOW}")
-for m in ${LATTICES:-3 4}; do
+if [ -n "${SOLVERS:-}" ]; then
+    read -r -a SOLVERS <<< "${SOLVERS}"
+else
+    SOLVERS=(bb-pgd mono-pqn "bi-pqn:low=${LOW}")
+fi
+for m in ${LATTICES:-3 4 5}; do
     spec="${SCENE}:m=${m},model=bim,p=8,eps_gmres=1e-8,low=[${LOW}]"
     if [ "${SEPARATE:-0}" = 1 ]; then
         # one solver per process, CHUNK steps at a time, in turn: the memory of one
@@ -40,8 +47,9 @@ for m in ${LATTICES:-3 4}; do
             done
         done
     else
-        lcpbench simulate --scene "$spec" --solver "${SOLVERS[0]}" --solver "${SOLVERS[1]}" \
-            --solver "${SOLVERS[2]}" --steps "${STEPS}" --out "${OUT}"
+        args=()
+        for s in "${SOLVERS[@]}"; do args+=(--solver "$s"); done
+        lcpbench simulate --scene "$spec" "${args[@]}" --steps "${STEPS}" --out "${OUT}"
     fi
 done
 lcpbench report "${OUT}"
