@@ -104,7 +104,7 @@ class ContactOptions:
     mu: float = 1.0
     low: Union[Sequence[str], Mapping[str, MobilityModel], str] = ()
     symmetrize: Optional[bool] = None
-    krylov_mb: float = 512.0
+    krylov_mb: float = 256.0
     far: str = "direct"
 
     def __post_init__(self) -> None:
@@ -118,7 +118,7 @@ class ContactOptions:
         mb = float(self.krylov_mb)
         if not (np.isfinite(mb) and mb >= 0):
             raise ValueError(f"krylov_mb = {self.krylov_mb!r} must be a finite number of MB >= 0 "
-                             "(memory of the kept Krylov directions of one step, e.g. 512)")
+                             "(memory of the kept Krylov directions of one step, e.g. 256)")
         if self.far not in ("auto", "direct", "fmm"):
             raise ValueError(f"far = {self.far!r}; use 'direct', 'fmm' or 'auto' (the far-field "
                              "engine of the boundary-integral mobility)")

@@ -39,7 +39,7 @@ from lcpbench.toolkit.blas import one_blas_thread
 __all__ = ["RecycledGCR", "KrylovBudget", "DEFAULT_KRYLOV_MB", "BUDGET_FLOOR",
            "default_capacity", "solve_together"]
 
-DEFAULT_KRYLOV_MB = 512.0
+DEFAULT_KRYLOV_MB = 256.0
 """Default budget (MB) of the kept Krylov directions of one time step: every recycled space
 of the step's operators (the high's forward and transposed spaces, its twins at other GMRES
 tolerances, the distance-split lows, another order's lows when they are given the same
