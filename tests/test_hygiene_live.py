@@ -216,3 +216,35 @@ def test_the_lattice_scene_builds_with_far_auto(monkeypatch):
     assert ref.mobility.setup.far == "direct"
     np.testing.assert_allclose(prob.U_nc, ref.U_nc, rtol=0,
                                atol=1e-8 * np.abs(ref.U_nc).max())
+
+
+def test_a_hooked_operator_is_priced_at_its_cold_product(monkeypatch):
+    """Seconds per inner application times the cold applications: a first product of 10
+    applications in 10 s and a recycled one of 1 application in 1 s price the operator at
+    10 s a product (the cold one), not at their mean of 5.5 s."""
+    import types
+
+    import lcpbench.core.operator as core_operator
+
+    clock = iter([0.0, 10.0, 20.0, 21.0])
+    monkeypatch.setattr(core_operator, "time",
+                        types.SimpleNamespace(perf_counter=lambda: next(clock)))
+    work = {"forward": 0}
+    steps = iter([10, 1])
+
+    def product(v):
+        work["forward"] += next(steps)
+        return 2.0 * v
+
+    op = Operator(product, shape=(3, 3), work=lambda: dict(work))
+    op @ np.ones(3)
+    op @ np.arange(1.0, 4.0)
+    assert op.count == 2 and op.applications == 11 and op.cold_applications == 10
+    assert op.measured_cost == pytest.approx(10.0)
+    plain = Operator(lambda v: v, shape=(3, 3))             # no hook: the mean product time
+    clock = iter([0.0, 4.0, 5.0, 7.0])
+    monkeypatch.setattr(core_operator, "time",
+                        types.SimpleNamespace(perf_counter=lambda: next(clock)))
+    plain @ np.ones(3)
+    plain @ np.ones(3)
+    assert plain.measured_cost == pytest.approx(3.0)

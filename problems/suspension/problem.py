@@ -9,18 +9,20 @@ eq. (defAandb) of the method paper::
 
 with ``s`` the kept separation.  ``A`` is never formed: it is a counted matrix-free
 operator (:mod:`.operators`), one forward solve per product (symmetrised with the adjoint
-solve on request: ``ContactOptions(symmetrize=True)``).  Low fidelities are named (:mod:`.fidelity`) and built on the high's set-up
-where they can share it.  All options are one :class:`ContactOptions`.
+solve on request: ``ContactOptions(symmetrize=True)``).  Low fidelities are named
+(:mod:`.fidelity`) and built on the high's set-up where they can share it.  All options are one :class:`ContactOptions`.
 
 Cost ratio.  No operator of the step declares a cost, and no product is made to time one:
-every operator is priced by the counted products the solve makes with it anyway, its
-mean wall time per product (:attr:`lcpbench.Operator.cost`), so E-MVPs are ``count_high +
-sum_low seconds_low / (seconds_high / count_high)``: the time spent in low-fidelity
-products in units of this solve's mean high-fidelity product.  The paper recomputes the
-ratio at every time step; this is that step's own ratio.  With Krylov recycling both
-fidelities' later products are cheaper than their first ones, and both are priced by
-their own mix.  (A solve whose first product is a low-fidelity one, e.g. from ``x0 = 0``,
-gets one counted high product from the framework to set the unit: ``LCP.high_cost``.)
+every operator is priced by the counted products the solve makes with it anyway
+(:attr:`lcpbench.Operator.measured_cost`).  A boundary-integral operator reports its inner
+applications (GCR/GMRES products of the traction operator), so its cost is its seconds per
+application times its cold applications: the cost of a first product, as the paper's cost
+ratio counts it, estimated from all of the solve's products.  The high's cold applications
+are those of the non-collisional solve (the high mobility's first product, made anyway);
+a low's are those of its first counted product (its own recycled spaces start empty).  So
+the ratio is ``(s_low / a_low) c_low / ((s_high / a_high) c_high)`` with ``s`` the seconds
+and ``a`` the applications of the solve's products and ``c`` the cold applications; the
+analytic models (no applications) are priced by their mean product time.
 """
 
 from __future__ import annotations
