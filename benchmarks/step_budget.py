@@ -5,6 +5,7 @@ Usage::
 
     python benchmarks/step_budget.py                               # m = 3 and 4, p = 8
     python benchmarks/step_budget.py --m 3 --steps 3 --solvers bb-pgd bi-pqn:low=p4e6
+    python benchmarks/step_budget.py --nc --m 3 --steps 10 --solvers mono-pqn
 
 For every lattice side ``m`` the ``paper-lattice`` scene is stepped with RPY until it has
 packed (:func:`common.packed_lattice`, as the shipped sets' instances are), and from that
@@ -26,6 +27,12 @@ wrappers around its parts, exclusive of each other) split every step into:
 
 The columns are percentages of the mean step; ``step s`` is the mean step in seconds,
 ``peak RSS`` the process's maximum resident set size.
+
+``--nc`` measures instead what the warm-started non-collisional solve saves: two copies of
+the scene take their steps in turn from the same packed state with the first solver, one
+starting ``U_nc`` from the previous step's density (the default) and one from zero; per step
+it prints the inner applications of the non-collisional solve of each (the guess's residual
+included) and of the whole step's forward solves.
 """
 
 from __future__ import annotations
@@ -120,6 +127,37 @@ def worker(state: str, m: int, p: int, solver: str, steps: int, low: str) -> Non
                       "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 
 
+def nc_saving(state: Path, m: int, p: int, solver: str, steps: int) -> None:
+    """Side by side: the non-collisional solve from the previous density, and from zero."""
+    from lcpbench.core.registry import make_scene
+
+    scenes = {}
+    for kind in ("warm", "cold"):
+        scenes[kind] = make_scene(f"paper-lattice:m={m},model=bim,p={p},eps_gmres=1e-8")
+        scenes[kind].set_state(dict(np.load(state)))
+    scenes["cold"].nc_guess = lambda: None
+    print(f"paper-lattice m = {m}, p = {p}, eps_gmres 1e-8, {solver}: inner applications "
+          "(warm / cold)\n")
+    print("| step | nc solve warm | nc solve cold | step warm | step cold |")
+    print("|---|---|---|---|---|")
+    totals = np.zeros(4)
+    for k in range(steps):
+        row = []
+        for kind in ("warm", "cold"):
+            scene = scenes[kind]
+            built = []
+            real = scene.build
+            scene.build = lambda *a, _real=real, **kw: built.append(_real(*a, **kw)) or built[-1]
+            scene.step(solver, qn_memory=True)
+            del scene.build
+            prob = built[0]
+            row.append((prob.nc_applications or 0, sum(prob.mobility.gmres_iterations)))
+        cells = [row[0][0], row[1][0], row[0][1], row[1][1]]
+        totals += cells
+        print(f"| {k} | " + " | ".join(str(int(c)) for c in cells) + " |", flush=True)
+    print("| all | " + " | ".join(str(int(c)) for c in totals) + " |")
+
+
 def run(state: Path, m: int, p: int, solver: str, steps: int, low: str) -> dict:
     out = subprocess.run([sys.executable, __file__, "--worker", str(state), str(m), str(p),
                           solver, str(steps), low], capture_output=True, text=True, check=False)
@@ -140,7 +178,15 @@ def main() -> None:
     ap.add_argument("--pack", type=int, default=40, help="RPY steps that pack the lattice")
     ap.add_argument("--low", default="p4e6", help="the low fidelity of Bi-PQN")
     ap.add_argument("--solvers", nargs="+", default=["bb-pgd", "mono-pqn", "bi-pqn"])
+    ap.add_argument("--nc", action="store_true",
+                    help="measure the warm-started non-collisional solve instead")
     args = ap.parse_args()
+    if args.nc:
+        with tempfile.TemporaryDirectory() as tmp:
+            state = Path(tmp) / "state.npz"
+            np.savez(state, **packed_lattice(args.m[0], args.pack, "paper-lattice").get_state())
+            nc_saving(state, args.m[0], args.p, args.solvers[0], args.steps)
+        return
     print(f"paper-lattice, boundary integral p = {args.p}, eps_gmres 1e-8, {args.steps} "
           f"steps from the state after {args.pack} RPY steps; Bi-PQN's low {args.low}; "
           "percent of the mean step\n")
