@@ -150,6 +150,10 @@ def test_the_scene_carries_the_density_to_the_next_step_and_checkpoints_it():
     cold.set_state({k: v for k, v in state.items() if not k.startswith("nc_")})
     without = cold.build()
     assert with_guess.nc_applications < without.nc_applications
+    # the high's cost unit stays a solve from zero: the count carried from the last one
+    assert with_guess.nc_cold_applications == float(state["nc_cold"]) > 0
+    assert with_guess.lcp.A.cold_applications == float(state["nc_cold"])
+    assert without.lcp.A.cold_applications == without.nc_applications
     np.testing.assert_allclose(with_guess.U_nc, without.U_nc, rtol=0,
                                atol=1e-7 * np.abs(without.U_nc).max())
     # a configuration that moved too far starts cold

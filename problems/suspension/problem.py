@@ -153,6 +153,9 @@ class ContactProblem:
         high), the next step's ``nc_guess``.
     nc_applications : float or None
         Inner applications of the non-collisional solve (None without a work hook).
+    nc_cold_applications : float or None
+        The applications it takes from zero: ``nc_applications`` when it started from
+        zero, else the ``nc_cold`` it was given (the next step's ``nc_cold``).
     """
 
     contacts: Contacts
@@ -163,6 +166,7 @@ class ContactProblem:
     setup_solves: int = 0
     nc_density: Optional[np.ndarray] = field(default=None, repr=False)
     nc_applications: Optional[float] = None
+    nc_cold_applications: Optional[float] = None
 
     def velocities(self, x: np.ndarray) -> np.ndarray:
         """``U = U_nc + M D x`` (reuses a product of ``A`` at exactly ``x`` if one was made).
@@ -300,7 +304,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
                           options: Optional[ContactOptions] = None,
                           x0: Optional[np.ndarray] = None, name: str = "contact",
                           meta: Optional[dict] = None, nc_guess: Optional[np.ndarray] = None,
-                          **knobs) -> ContactProblem:
+                          nc_cold: Optional[float] = None, **knobs) -> ContactProblem:
     """Everything one forward Euler step needs (the module docstring has the LCP).
 
     Parameters
@@ -322,6 +326,11 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
         Initial guess of the non-collisional solve: the previous step's
         :attr:`ContactProblem.nc_density` (a boundary-integral high only; ignored when its
         size does not match).
+    nc_cold : float, optional
+        The inner applications the non-collisional solve takes from zero (the previous
+        step's :attr:`ContactProblem.nc_cold_applications`): with a guess the solve takes
+        fewer, and the high's ``cold_applications`` (the unit of its cost) is this number;
+        None leaves them to the high's first counted product.
     **knobs
         Fields of :class:`ContactOptions` that replace those of ``options``
         (``dt=0.1, model="bim"``).
@@ -359,7 +368,8 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
     # the non-collisional solve is the high mobility's cold product (empty recycled
     # spaces): its inner applications are the high's cold_applications (two solves when
     # symmetrised: about twice as many)
-    cold = nc.applications * (2 if sym else 1) if nc.applications else None
+    cold_nc = nc.applications if nc_guess is None else nc_cold
+    cold = cold_nc * (2 if sym else 1) if cold_nc else None
     high = Operator(dmd.operator(), name="high", work=_work(mob), cold_applications=cold,
                     rtol=high_fid.product_rtol() if high_fid is not None else None)
     config = Configuration(c, r, opts.mu, mob, high_fid, krylov=krylov, far=opts.far)
@@ -380,7 +390,7 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)
     lcp = LCP(high, b, x0=x0, low=low_ops, name=name, meta=info)
     return ContactProblem(contacts, mob, U_nc, lcp, dmd, setup, nc_density=nc.density,
-                          nc_applications=nc.applications)
+                          nc_applications=nc.applications, nc_cold_applications=cold_nc)
 
 
 def _krylov_budget(opts: ContactOptions):

@@ -305,6 +305,7 @@ class LatticeScene:
         self._prev_memory: Optional[SecantMemory] = None
         self._nc_centers = np.empty((0, 3))       # where the kept density was solved for
         self._nc_density = np.empty(0)
+        self._nc_cold = 0.0                       # applications of its solve from zero
 
     def get_state(self) -> dict:
         """The state that evolves from step to step, as arrays (for simulation checkpoints).
@@ -314,7 +315,8 @@ class LatticeScene:
         same trajectory. ``memory_S`` and ``memory_Y`` hold the previous solve's
         secant pairs (``qn_memory=True``; no columns otherwise), ``nc_centers`` and
         ``nc_density`` the non-collisional solve's density and where it was solved for
-        (the next guess; empty without one).
+        (the next guess; empty without one), ``nc_cold`` the inner applications of that
+        solve from zero.
         """
         mem = self._prev_memory
         empty = np.zeros((len(self._prev_pairs), 0))
@@ -323,7 +325,8 @@ class LatticeScene:
                 "prev_x": self._prev_x.copy(),
                 "memory_S": empty if mem is None else mem.S.copy(),
                 "memory_Y": empty if mem is None else mem.Y.copy(),
-                "nc_centers": self._nc_centers.copy(), "nc_density": self._nc_density.copy()}
+                "nc_centers": self._nc_centers.copy(), "nc_density": self._nc_density.copy(),
+                "nc_cold": np.array(self._nc_cold)}
 
     def set_state(self, state: dict) -> None:
         """Restore what :meth:`get_state` returned (a ``ValueError`` names a mismatch)."""
@@ -343,6 +346,7 @@ class LatticeScene:
                                       dtype=np.float64).reshape(-1, 3)
         self._nc_density = np.asarray(state.get("nc_density", np.empty(0)),
                                       dtype=np.float64).reshape(-1)
+        self._nc_cold = float(state.get("nc_cold", 0.0))
 
     def fidelity_knobs(self, name: str) -> dict:
         """The knobs of low-fidelity ``name`` at this scene's order and tolerance.
@@ -426,9 +430,10 @@ class LatticeScene:
             self.centers, self.radii, F, T, options=options,
             name=f"lattice-m{P.m}-step{self.step_index}",
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed},
-            nc_guess=self.nc_guess() if warm_start else None)
+            nc_guess=self.nc_guess() if warm_start else None, nc_cold=self._nc_cold or None)
         if problem.nc_density is not None:
             self._nc_centers, self._nc_density = self.centers.copy(), problem.nc_density
+            self._nc_cold = float(problem.nc_cold_applications or 0.0)
         if warm_start and problem.contacts.n:
             x0 = self.warm_start(problem)
             if np.any(x0):
