@@ -89,7 +89,7 @@ class ContactOptions:
         operator of the step shares (the high's forward and transposed recycled spaces,
         its twins at other tolerances, the distance-split lows and the lows of other
         orders): :class:`.bim.recycle.KrylovBudget`, default
-        :data:`.bim.recycle.DEFAULT_KRYLOV_MB`.
+        :data:`.bim.recycle.DEFAULT_KRYLOV_MB`; 0 turns recycling off.
     far : {"direct", "fmm", "auto"}
         Far-field engine of the boundary-integral mobilities: compiled direct sums,
         fmm3dpy's Stokes FMM, or ``auto`` (the FMM from the measured crossover

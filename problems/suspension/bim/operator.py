@@ -90,7 +90,7 @@ from .blocks import StoredBlocks
 from .gmres import relaxed_gmres
 from .kernels import dense_rows
 from .pairs import RELAX_STEP, PairPlan
-from .recycle import KrylovBudget, RecycledGCR, default_capacity, solve_together
+from .recycle import BUDGET_FLOOR, KrylovBudget, RecycledGCR, default_capacity, solve_together
 from .setup import NEAR_UPSAMPLE, BimSetup
 from .sphere_vsh import default_quad_tol
 
@@ -143,7 +143,8 @@ class BimMobility(LinearOperator):
         Memory budget of the kept directions (:class:`.recycle.KrylovBudget`), shared by
         both equations, the twins (:meth:`at_tolerance`) and the split lows built on this
         operator; a number is a new budget of that many MB (default
-        :data:`.recycle.DEFAULT_KRYLOV_MB`).  One budget per time step bounds them all.
+        :data:`.recycle.DEFAULT_KRYLOV_MB`; 0 turns recycling off).  One budget per time
+        step bounds them all.
     maxiter : int
         Maximum total number of GMRES iterations per product.
     near_block_mb : float
@@ -198,8 +199,8 @@ class BimMobility(LinearOperator):
         tol = default_quad_tol(eps) if quad_tol is None else float(quad_tol)
         setup = BimSetup(centers, radii, p=p, mu=mu, quad_tol=tol, far=far,
                          near_upsample=near_upsample, near_block_mb=near_block_mb)
-        cap = (default_capacity(setup.unknowns, budget.megabytes) if recycle is None
-               else recycle)
+        cap = (recycle if recycle is not None else 0 if budget.nbytes == 0
+               else max(default_capacity(setup.unknowns, budget.megabytes), BUDGET_FLOOR))
         self._assemble(setup, StoredBlocks(setup.plan), eps_gmres=eps, on_failure=on_failure,
                        maxiter=maxiter, recycle=cap, krylov=budget)
 

@@ -103,7 +103,7 @@ class KrylovBudget:
         if isinstance(megabytes, bool) or not (np.isfinite(mb) and mb >= 0):
             raise ValueError(f"Krylov budget {megabytes!r} MB must be a finite number >= 0 "
                              f"(memory of the kept directions of one step, e.g. "
-                             f"{DEFAULT_KRYLOV_MB:g}; 0 keeps {BUDGET_FLOOR} per space)")
+                             f"{DEFAULT_KRYLOV_MB:g}; 0 turns recycling off)")
         self.megabytes = mb
         self.nbytes = int(mb * 1e6)
         self._members: weakref.WeakSet = weakref.WeakSet()
