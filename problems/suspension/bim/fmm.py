@@ -27,14 +27,14 @@ __all__ = ["check_fmm", "fmm_traction", "fmm_available", "resolve_far", "FAR_CRO
 FAR_ENGINES = ("auto", "direct", "fmm")
 """The far-field engines a boundary-integral mobility accepts."""
 
-FAR_CROSSOVER_M = 1100
+FAR_CROSSOVER_M = 500
 """Spheres from which ``far="auto"`` takes the FMM.  Measured by ``python
-benchmarks/far_crossover.py --m 2 3 4`` (p = 8, packed lattices, one run; docs/benchmarks.md,
-"Live step hygiene"): the FMM's traction-operator product took 83, 22 and 17 times the
-direct sums' at M = 8, 27 and 64 (ratios direct / fmm 0.012, 0.045, 0.057), so no measured
-size has the crossover; the ratio grows at most like M (direct sums ~ M^2, the FMM ~ M), so
-it reaches 1 no earlier than M = 64 / 0.057, about 1100 spheres.  Rerun the script with
-larger ``--m`` to move it."""
+benchmarks/far_crossover.py --m 2 3 4 5`` (p = 8, packed lattices; docs/benchmarks.md,
+"Live step hygiene"): the FMM's traction-operator product took 83, 22, 17 and 4 times the
+direct sums' at M = 8, 27, 64 and 125 (ratios direct / fmm 0.012, 0.045, 0.057, 0.252), so
+no measured size has the crossover; the ratio grows like M (direct sums ~ M^2, the FMM
+~ M), which puts it near M = 125 / 0.252, about 500 spheres.  Rerun the script with larger
+``--m`` to move it."""
 
 
 def fmm_available() -> bool:
