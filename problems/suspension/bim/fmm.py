@@ -27,13 +27,14 @@ __all__ = ["check_fmm", "fmm_traction", "fmm_available", "resolve_far", "FAR_CRO
 FAR_ENGINES = ("auto", "direct", "fmm")
 """The far-field engines a boundary-integral mobility accepts."""
 
-FAR_CROSSOVER_M = 500
+FAR_CROSSOVER_M = 1000
 """Spheres from which ``far="auto"`` takes the FMM.  Measured by ``python
-benchmarks/far_crossover.py --m 2 3 4 5`` (p = 8, packed lattices; docs/benchmarks.md,
-"Live step hygiene"): the FMM's traction-operator product took 83, 22, 17 and 4 times the
-direct sums' at M = 8, 27, 64 and 125 (ratios direct / fmm 0.012, 0.045, 0.057, 0.252), so
-no measured size has the crossover; the ratio grows like M (direct sums ~ M^2, the FMM
-~ M), which puts it near M = 125 / 0.252, about 500 spheres.  Rerun the script with larger
+benchmarks/far_crossover.py --m 2 3 4 5 6`` (p = 8, packed lattices; docs/benchmarks.md,
+"Live step hygiene"): the FMM's traction-operator product took 83, 22, 17, 4.0 and 4.1
+times the direct sums' at M = 8, 27, 64, 125 and 216 (ratios direct / fmm 0.012, 0.045,
+0.057, 0.252, 0.241): no measured size has the crossover, and from 125 to 216 both grow
+about like M, so it cannot be placed from these; 1000 is above every measured size (the
+script's extrapolation ``M / ratio`` from 216 gives 896).  Rerun the script with larger
 ``--m`` to move it."""
 
 
