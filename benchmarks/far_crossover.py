@@ -21,8 +21,9 @@ The crossover is the smallest ``M`` whose application ratio is above 1 (a cold p
 the same number of full-accuracy applications with either engine, except that the direct
 sums also relax the later ones, so the application ratio is the FMM's best case); it goes
 into ``problems/suspension/bim/fmm.py: FAR_CROSSOVER_M`` with this command.  When no
-measured ``M`` has it, the script prints where the measured ratios extrapolate to 1 (the
-direct sums grow like ``M^2``, the FMM like ``M``: the ratio like ``M``).
+measured ``M`` has it, the script prints where the last ratio extrapolates to 1 if the
+ratio grows like ``M`` (all-pairs direct sums ~ ``M^2``, the FMM ~ ``M``); on packed lattices
+up to 216 spheres it did not (docs/benchmarks.md, "Live step hygiene").
 """
 
 from __future__ import annotations
@@ -120,8 +121,8 @@ def main() -> None:
         return
     last = rows[-1]
     guess = last["M"] / last["apply_ratio"]
-    print(f"\ncrossover: none measured; the ratio grows like M, so it reaches 1 near "
-          f"M = {guess:.0f} (extrapolated from M = {last['M']})")
+    print(f"\ncrossover: none measured; if the ratio grows like M it reaches 1 near "
+          f"M = {guess:.0f} (extrapolated from M = {last['M']}; check the rows' trend)")
 
 
 if __name__ == "__main__":
