@@ -137,16 +137,18 @@ def test_bim_operator_reports_its_forward_and_adjoint_krylov_applications():
     assert fwd[-1] + adj[-1] < fwd[0] + adj[0]
 
 
-def test_bim_declares_the_cold_applications_it_timed_with_a_low():
-    """With a low fidelity the costs are timed on cold products; the high operator then
-    declares the inner applications of those cold products as its cold_applications."""
+def test_bim_declares_the_cold_applications_of_its_non_collisional_solve():
+    """The non-collisional solve is the high mobility's first (cold) product: the high
+    operator declares its inner applications as its cold_applications, and no cost is
+    declared (the step's own counted products price the fidelities, brief H item 5)."""
     c = np.array([[0.0, 0.0, 0.0], [2.2, 0.0, 0.0], [1.1, 1.95, 0.0]])
     F = np.tile([[0.0, -1.0, 0.0]], (3, 1))
     prob = build_contact_problem(c, 1.0, F, None, dt=0.1, delta=0.4, model="bim", p=3,
                                  eps_gmres=1e-8, low=["rpy"])
     op, mob = prob.lcp.A, prob.mobility
     cold = op.cold_applications
-    assert cold is not None and op.declared_cost is not None
+    assert cold is not None and cold == prob.nc_applications and op.declared_cost is None
+    assert len(mob.gmres_iterations) == 1                   # U_nc only: nothing was timed
     before = mob.work_counts()
     with mob.cold_products():
         apply_uncounted(op, np.linspace(3.0, 1.0, prob.lcp.n))    # not a cached vector

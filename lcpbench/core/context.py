@@ -266,12 +266,18 @@ class SolverContext:
 
     # ------------------------------------------------------------------ budget
     def _guard(self, op: Operator, k: int) -> None:
-        if op.name == "high":
-            extra = float(k)
+        if self.lcp.A.cost is None:
+            # no unit yet (undeclared costs, no high product so far): low products are
+            # priced once the first high product has been timed, rather than by a counted
+            # high product made only to set the unit (LCP.high_cost)
+            spent, extra = float(self.lcp.A.count), float(k) if op.name == "high" else 0.0
+        elif op.name == "high":
+            spent, extra = self.lcp.emvps(), float(k)
         else:
             c = op.cost
+            spent = self.lcp.emvps()
             extra = k * (c / self.lcp.high_cost()) if c is not None else 0.0
-        if self.lcp.emvps() + extra > self.budget.max_emvps + 1e-9:
+        if spent + extra > self.budget.max_emvps + 1e-9:
             raise BudgetExhausted(f"budget of {self.budget.max_emvps:g} E-MVPs exhausted")
         if self.budget.max_seconds is not None and self.elapsed() > self.budget.max_seconds:
             raise BudgetExhausted(f"time budget of {self.budget.max_seconds:g} s exhausted",

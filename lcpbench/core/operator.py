@@ -321,8 +321,19 @@ class Operator(LinearOperator):
 
     @property
     def measured_cost(self) -> Optional[float]:
-        """Mean measured seconds per MVP so far, or None before the first product."""
-        return self.seconds / self.count if self.count else None
+        """Measured seconds per MVP so far, or None before the first product.
+
+        The mean wall time per product; for an operator with a ``work`` hook whose
+        products made inner applications, the seconds per application times
+        :attr:`cold_applications`: the cost of one product from a cold start, estimated
+        from the products made (with Krylov recycling later products are cheaper than
+        the first, and a plain mean would price the operator by its mix of both)."""
+        if not self.count:
+            return None
+        apps, cold = self.applications, self.cold_applications
+        if self._work is not None and apps > 0 and cold:
+            return self.seconds / apps * cold
+        return self.seconds / self.count
 
     @property
     def cost(self) -> Optional[float]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 import scipy.sparse as sp
@@ -98,6 +98,12 @@ class Configuration:
         is built); a low may share its set-up (``BimMobility.at_tolerance``).
     high_fidelity : Fidelity or None
         The high's description (None for a user callable or while it is built).
+    krylov : KrylovBudget or None
+        The memory budget of kept Krylov directions that every boundary-integral
+        mobility of this configuration shares (:class:`.bim.recycle.KrylovBudget`; None:
+        each builds its own default one).
+    far : {"auto", "direct", "fmm"}
+        Far-field engine of the boundary-integral mobilities (:func:`.bim.fmm.resolve_far`).
     """
 
     centers: np.ndarray
@@ -105,6 +111,8 @@ class Configuration:
     mu: float = 1.0
     high: Optional[LinearOperator] = None
     high_fidelity: Optional[Fidelity] = None
+    krylov: Any = None
+    far: str = "direct"
 
     def same_order_bim(self, fid: Fidelity) -> bool:
         """The high is a boundary-integral mobility of ``fid``'s order (its set-up serves)."""
@@ -264,7 +272,7 @@ def _build_bim(fid: Fidelity, config: Configuration) -> LinearOperator:
     from .bim import bim_mobility
 
     return bim_mobility(config.centers, config.radii, p=fid.p, eps_gmres=fid.eps_gmres,
-                        mu=config.mu)
+                        mu=config.mu, krylov=config.krylov, far=config.far)
 
 
 def _build_split(fid: Fidelity, config: Configuration) -> LinearOperator:
@@ -273,7 +281,7 @@ def _build_split(fid: Fidelity, config: Configuration) -> LinearOperator:
 
     base = (config.high if config.same_order_bim(fid)
             else bim_mobility(config.centers, config.radii, p=fid.p, eps_gmres=fid.eps_gmres,
-                              mu=config.mu))
+                              mu=config.mu, krylov=config.krylov, far=config.far))
     return split_mobility(base, fid.extra["far_degree"], fid.eps_gmres,
                           rank_tol=fid.extra.get("rank_tol"))
 

@@ -54,14 +54,19 @@ def _symmetrized(M: LinearOperator, D: sp.csc_matrix, Dt: sp.csr_matrix, v: np.n
 
 def contact_product(M: LinearOperator, D: sp.csc_matrix, symmetrize: bool) -> LinearOperator:
     """``v -> D' M D v`` (or ``D' (M + M') D v / 2``) without a cache: the operator of a low
-    fidelity, whose products never move the spheres."""
+    fidelity, whose products never move the spheres.  Its ``cold_products`` is the
+    mobility's (None when the mobility keeps nothing between products)."""
     Dt = D.T.tocsr()
     n = D.shape[1]
 
     def mv(v: np.ndarray) -> np.ndarray:
         return _symmetrized(M, D, Dt, v) if symmetrize else Dt @ _apply(M, D @ v)
 
-    return LinearOperator((n, n), dtype=np.float64, matvec=mv)
+    op = LinearOperator((n, n), dtype=np.float64, matvec=mv)
+    # a mobility that keeps Krylov directions offers products at a first product's cost
+    # (BimMobility.cold_products): what a timing of this low's cost must use
+    op.cold_products = getattr(M, "cold_products", None)
+    return op
 
 
 class ContactOperator:
@@ -132,6 +137,9 @@ class ContactOperator:
         return self.Dt @ (0.5 * (u + ua))
 
     def operator(self) -> LinearOperator:
-        """The contact operator as a symmetric ``LinearOperator`` (n, n)."""
+        """The contact operator as a symmetric ``LinearOperator`` (n, n); its
+        ``cold_products`` is the mobility's (as :func:`contact_product`'s)."""
         n = self.D.shape[1]
-        return LinearOperator((n, n), matvec=self.matvec, rmatvec=self.matvec, dtype=np.float64)
+        op = LinearOperator((n, n), matvec=self.matvec, rmatvec=self.matvec, dtype=np.float64)
+        op.cold_products = getattr(self.M, "cold_products", None)
+        return op

@@ -9,14 +9,26 @@ eq. (defAandb) of the method paper::
 
 with ``s`` the kept separation.  ``A`` is never formed: it is a counted matrix-free
 operator (:mod:`.operators`), one forward solve per product (symmetrised with the adjoint
-solve on request: ``ContactOptions(symmetrize=True)``).  Low fidelities are named (:mod:`.fidelity`) and built on the high's set-up
-where they can share it; their cost and the high's are measured on the instance, so
-E-MVPs use this step's cost ratio.  All options are one :class:`ContactOptions`.
+solve on request: ``ContactOptions(symmetrize=True)``).  Low fidelities are named
+(:mod:`.fidelity`) and built on the high's set-up where they can share it.  All options are one :class:`ContactOptions`.
+
+Cost ratio.  No operator of the step declares a cost, and no product is made to time one:
+every operator is priced by the counted products the solve makes with it anyway
+(:attr:`lcpbench.Operator.measured_cost`).  A boundary-integral operator reports its inner
+applications (GCR/GMRES products of the traction operator), so its cost is its seconds per
+application times its cold applications: the cost of a first product, as the paper's cost
+ratio counts it, estimated from all of the solve's products.  The high's cold applications
+are those of the non-collisional solve (the high mobility's first product, made anyway);
+a low's are those of its first counted product (its own recycled spaces start empty).  So
+the ratio is ``(s_low / a_low) c_low / ((s_high / a_high) c_high)`` with ``s`` the seconds
+and ``a`` the applications of the solve's products and ``c`` the cold applications; the
+analytic models (no applications) are priced by their mean product time.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Optional, Union
@@ -25,7 +37,7 @@ import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import Operator, measure_cost
+from lcpbench.core.operator import Operator
 
 from .contacts import Contacts
 from .fidelity import Configuration, Fidelity, build_mobility, parse_fidelity
@@ -72,6 +84,17 @@ class ContactOptions:
         discretisation error, which moves the answer less than that error
         (docs/mobility.md); RPY and ``self`` are exactly symmetric; the distance-split lows
         are never symmetrised.
+    krylov_mb : float
+        Memory budget (MB) of the kept Krylov directions that every boundary-integral
+        operator of the step shares (the high's forward and transposed recycled spaces,
+        its twins at other tolerances, the distance-split lows and the lows of other
+        orders): :class:`.bim.recycle.KrylovBudget`, default
+        :data:`.bim.recycle.DEFAULT_KRYLOV_MB`; 0 turns recycling off.
+    far : {"direct", "fmm", "auto"}
+        Far-field engine of the boundary-integral mobilities: compiled direct sums,
+        fmm3dpy's Stokes FMM, or ``auto`` (the FMM from the measured crossover
+        :data:`.bim.fmm.FAR_CROSSOVER_M` spheres on when fmm3dpy is importable;
+        :func:`.bim.fmm.resolve_far`).
     """
 
     dt: float = 0.1
@@ -83,6 +106,8 @@ class ContactOptions:
     mu: float = 1.0
     low: Union[Sequence[str], Mapping[str, MobilityModel], str] = ()
     symmetrize: Optional[bool] = None
+    krylov_mb: float = 256.0
+    far: str = "direct"
 
     def __post_init__(self) -> None:
         dt = float(self.dt)
@@ -92,6 +117,14 @@ class ContactOptions:
         if not (np.isfinite(separation) and separation >= 0):
             raise ValueError(f"separation = {separation} must be a finite number >= 0 (the "
                              "minimum gap the LCP keeps)")
+        mb = float(self.krylov_mb)
+        if not (np.isfinite(mb) and mb >= 0):
+            raise ValueError(f"krylov_mb = {self.krylov_mb!r} must be a finite number of MB >= 0 "
+                             "(memory of the kept Krylov directions of one step, e.g. 256)")
+        if self.far not in ("auto", "direct", "fmm"):
+            raise ValueError(f"far = {self.far!r}; use 'direct', 'fmm' or 'auto' (the far-field "
+                             "engine of the boundary-integral mobility)")
+        object.__setattr__(self, "krylov_mb", mb)
         object.__setattr__(self, "dt", dt)
         object.__setattr__(self, "separation", separation)
         object.__setattr__(self, "mu", check_viscosity(self.mu))
@@ -114,7 +147,15 @@ class ContactProblem:
         per-instance costs.
     setup_solves : int
         Mobility solves spent building the problem outside the LCP's counters
-        (``U_nc`` and cost timing).
+        (``U_nc``, and cost timing when there was no ``U_nc`` to time).
+    nc_density : ndarray or None
+        The solution of the non-collisional solve's traction equation (boundary-integral
+        high), the next step's ``nc_guess``.
+    nc_applications : float or None
+        Inner applications of the non-collisional solve (None without a work hook).
+    nc_cold_applications : float or None
+        The applications it takes from zero: ``nc_applications`` when it started from
+        zero, else the ``nc_cold`` it was given (the next step's ``nc_cold``).
     """
 
     contacts: Contacts
@@ -123,6 +164,9 @@ class ContactProblem:
     lcp: LCP
     _dmd: ContactOperator = field(repr=False)
     setup_solves: int = 0
+    nc_density: Optional[np.ndarray] = field(default=None, repr=False)
+    nc_applications: Optional[float] = None
+    nc_cold_applications: Optional[float] = None
 
     def velocities(self, x: np.ndarray) -> np.ndarray:
         """``U = U_nc + M D x`` (reuses a product of ``A`` at exactly ``x`` if one was made).
@@ -170,8 +214,10 @@ def resolve_mobility(centers, radii, model: MobilityModel = "rpy", p: int = 8,
 
 
 def _high(c: np.ndarray, r: np.ndarray, model: MobilityModel, p: int, eps_gmres: float,
-          mu: float) -> tuple[LinearOperator, Optional[Fidelity]]:
-    """The high mobility and its description (None for a user callable)."""
+          mu: float, *, krylov=None, far: str = "direct"
+          ) -> tuple[LinearOperator, Optional[Fidelity]]:
+    """The high mobility and its description (None for a user callable); a
+    boundary-integral one gets the Krylov budget ``krylov`` and the far field ``far``."""
     if callable(model):
         op = model(c, r)
         op = op if isinstance(op, LinearOperator) else aslinearoperator(op)
@@ -185,7 +231,7 @@ def _high(c: np.ndarray, r: np.ndarray, model: MobilityModel, p: int, eps_gmres:
     except ValueError as exc:
         raise ValueError(f"unknown mobility model {model!r}: {exc}; or pass a callable "
                          "(centers, radii) -> LinearOperator") from None
-    return build_mobility(fid, Configuration(c, r, mu)), fid
+    return build_mobility(fid, Configuration(c, r, mu, krylov=krylov, far=far)), fid
 
 
 def _low_models(low, p: int, eps_gmres: float) -> dict:
@@ -215,12 +261,6 @@ def _check_forces(name: str, F, M: int) -> np.ndarray:
     return F
 
 
-def _cold(mob: LinearOperator):
-    """The mobility's :meth:`~.bim.BimMobility.cold_products` when it keeps state between
-    products (recycled Krylov directions), else None (RPY and the one-sphere model do not)."""
-    return getattr(mob, "cold_products", None)
-
-
 def _work(mob: LinearOperator):
     """The mobility's inner-application counter (:meth:`~.bim.BimMobility.work_counts`), the
     ``work`` hook of the counted operator, or None (RPY and the one-sphere model: a product
@@ -228,27 +268,43 @@ def _work(mob: LinearOperator):
     return getattr(mob, "work_counts", None)
 
 
-def _timed(op: Operator, mob: LinearOperator, name: str) -> Operator:
-    """``op`` with its cost measured at a first (cold) product's cost and, for a mobility with
-    a work hook, the inner applications of those cold products declared as its
-    ``cold_applications`` (their mean over the timed products: one forward solve each)."""
+@dataclass(frozen=True)
+class _LoadSolve:
+    """The non-collisional solve ``U_nc = M [F; T]`` as it was made: velocities, seconds,
+    inner applications (None without a work hook) and the preconditioned density ``y``
+    (None unless the mobility offers :meth:`~.bim.BimMobility.solve_loads`)."""
+
+    U: np.ndarray
+    seconds: float = 0.0
+    applications: Optional[float] = None
+    density: Optional[np.ndarray] = None
+
+
+def _load_solve(mob: LinearOperator, FT: np.ndarray, guess: Optional[np.ndarray]) -> _LoadSolve:
+    """``U_nc = M [F; T]``, timed, with its inner applications, from ``guess`` when the
+    mobility takes one (:meth:`~.bim.BimMobility.solve_loads`)."""
+    if not np.any(FT):
+        return _LoadSolve(np.zeros(FT.size))
     work = _work(mob)
-    before = work() if work is not None else None
-    n_fwd = len(getattr(mob, "gmres_iterations", ()))
-    cost = measure_cost(op, cold=_cold(mob))
-    cold = None
-    if work is not None and before is not None:
-        after = work()
-        reps = len(getattr(mob, "gmres_iterations", ())) - n_fwd
-        apps = sum(after.values()) - sum(before.values())
-        cold = apps / reps if reps > 0 and apps > 0 else None
-    return Operator(op, cost=cost, name=name, cold_applications=cold)
+    before = sum(work().values()) if work is not None else None
+    solve = getattr(mob, "solve_loads", None)
+    if guess is not None and solve is not None and np.size(guess) != mob.setup.unknowns:
+        guess = None                               # another configuration's size
+    t0 = time.perf_counter()
+    if solve is not None:
+        U, y = solve(FT, guess)
+    else:
+        U, y = mob.matvec(FT), None
+    seconds = time.perf_counter() - t0
+    apps = sum(work().values()) - before if work is not None and before is not None else None
+    return _LoadSolve(np.asarray(U, dtype=np.float64).reshape(-1), seconds, apps, y)
 
 
 def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
                           options: Optional[ContactOptions] = None,
                           x0: Optional[np.ndarray] = None, name: str = "contact",
-                          meta: Optional[dict] = None, **knobs) -> ContactProblem:
+                          meta: Optional[dict] = None, nc_guess: Optional[np.ndarray] = None,
+                          nc_cold: Optional[float] = None, **knobs) -> ContactProblem:
     """Everything one forward Euler step needs (the module docstring has the LCP).
 
     Parameters
@@ -266,6 +322,15 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
         Instance name.
     meta : dict, optional
         Extra metadata (step, scene parameters) merged into ``lcp.meta``.
+    nc_guess : ndarray, optional
+        Initial guess of the non-collisional solve: the previous step's
+        :attr:`ContactProblem.nc_density` (a boundary-integral high only; ignored when its
+        size does not match).
+    nc_cold : float, optional
+        The inner applications the non-collisional solve takes from zero (the previous
+        step's :attr:`ContactProblem.nc_cold_applications`): with a guess the solve takes
+        fewer, and the high's ``cold_applications`` (the unit of its cost) is this number;
+        None leaves them to the high's first counted product.
     **knobs
         Fields of :class:`ContactOptions` that replace those of ``options``
         (``dt=0.1, model="bim"``).
@@ -288,20 +353,29 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
     F = _check_forces("F_ext", F_ext, M)
     T = _check_forces("T_ext", T_ext, M)
     contacts = Contacts.from_configuration(c, r, opts.delta)
-    mob, high_fid = _high(c, r, opts.model, opts.p, opts.eps_gmres, opts.mu)
+    krylov = _krylov_budget(opts)
+    mob, high_fid = _high(c, r, opts.model, opts.p, opts.eps_gmres, opts.mu, krylov=krylov,
+                          far=opts.far)
     FT = np.concatenate([F, T], axis=1).ravel()
-    U_nc = (np.asarray(mob.matvec(FT), dtype=np.float64).reshape(-1) if np.any(FT)
-            else np.zeros(6 * M))
+    nc = _load_solve(mob, FT, nc_guess)
+    U_nc = nc.U
     setup = int(bool(np.any(FT)))
     b = (contacts.gaps - opts.separation) / opts.dt + contacts.D.T @ U_nc
     sym = (high_fid.symmetrized(opts.symmetrize) if high_fid is not None
            else bool(opts.symmetrize))
     dmd = ContactOperator(contacts.D, mob, symmetrize=sym)
     # an iterative model declares its products' accuracy (eps_gmres), an analytic one 0
-    high = Operator(dmd.operator(), name="high", work=_work(mob),
+    # the non-collisional solve is the high mobility's cold product (empty recycled
+    # spaces): its inner applications are the high's cold_applications (two solves when
+    # symmetrised: about twice as many)
+    cold_nc = nc.applications if nc_guess is None else nc_cold
+    cold = cold_nc * (2 if sym else 1) if cold_nc else None
+    high = Operator(dmd.operator(), name="high", work=_work(mob), cold_applications=cold,
                     rtol=high_fid.product_rtol() if high_fid is not None else None)
-    config = Configuration(c, r, opts.mu, mob, high_fid)
-    low_ops, low_mobs = {}, {}
+    config = Configuration(c, r, opts.mu, mob, high_fid, krylov=krylov, far=opts.far)
+    # no declared costs: the paper recomputes the cost ratio at every time step, and here it
+    # is measured on the step's own counted products (module docstring, "Cost ratio")
+    low_ops = {}
     for key, spec in _low_models(opts.low, opts.p, opts.eps_gmres).items():
         if callable(spec):
             lm, lsym = resolve_mobility(c, r, spec, mu=opts.mu), bool(opts.symmetrize)
@@ -309,20 +383,26 @@ def build_contact_problem(centers, radii, F_ext=None, T_ext=None, *,
         else:
             lm, lsym = build_mobility(spec, config), spec.symmetrized(opts.symmetrize)
             lrtol = spec.product_rtol()
-        low_mobs[key] = lm
         low_ops[key] = Operator(contact_product(lm, contacts.D, lsym), name=key, rtol=lrtol,
                                 work=_work(lm))
-    if low_ops and contacts.n:
-        # the paper recomputes the cost ratio at every time step: time one product of each,
-        # at the cost of a first product (measure_cost with cold: no recycled directions)
-        high = _timed(high, mob, "high")
-        setup += 1
-        low_ops = {k: _timed(op, low_mobs[k], k) for k, op in low_ops.items()}
     info = _meta(meta, opts, M=M, contacts=contacts, sym=sym)
     if x0 is not None:
         x0 = np.maximum(np.asarray(x0, dtype=np.float64).reshape(-1), 0.0)
     lcp = LCP(high, b, x0=x0, low=low_ops, name=name, meta=info)
-    return ContactProblem(contacts, mob, U_nc, lcp, dmd, setup)
+    return ContactProblem(contacts, mob, U_nc, lcp, dmd, setup, nc_density=nc.density,
+                          nc_applications=nc.applications, nc_cold_applications=cold_nc)
+
+
+def _krylov_budget(opts: ContactOptions):
+    """One Krylov budget for the step's boundary-integral operators (None when no model of
+    the step is a boundary-integral one, so that RPY steps never import it)."""
+    low = opts.low
+    names = [opts.model] + (list(low.values()) if isinstance(low, Mapping) else
+                            low.split(",") if isinstance(low, str) else list(low))
+    if not any(isinstance(m, str) and m.strip().lower() not in ("rpy", "self") for m in names):
+        return None
+    from .bim.recycle import KrylovBudget
+    return KrylovBudget(opts.krylov_mb)
 
 
 def _options(options: Optional[ContactOptions], knobs: dict) -> ContactOptions:

@@ -33,7 +33,10 @@ LCPs have more contacts than spheres, as in the paper's time steps 201-250.
 Time stepping is forward Euler: each step builds the contact LCP of
 :mod:`.problem`, solves it with the given solver, and moves the spheres with
 ``U = U_nc + M D x``; the product ``M D x`` is the one the framework made
-when verifying the solve, so the update needs no extra mobility solve.
+when verifying the solve, so the update needs no extra mobility solve.  With the
+boundary-integral model the non-collisional solve ``U_nc`` starts from the previous
+step's density when no sphere moved more than :data:`NC_GUESS_MOVE` radii since
+(:meth:`LatticeScene.build`).
 """
 
 from __future__ import annotations
@@ -56,7 +59,12 @@ from .geometry import pair_gaps
 from .problem import ContactOptions, ContactProblem, build_contact_problem
 
 __all__ = ["LatticeParams", "LatticeScene", "lattice_configuration", "bisect_scale",
-           "lattice", "PaperLatticeParams", "paper_lattice", "LATTICE_AXES"]
+           "lattice", "PaperLatticeParams", "paper_lattice", "LATTICE_AXES", "NC_GUESS_MOVE"]
+
+#: The previous step's density is the initial guess of the non-collisional solve when no
+#: sphere moved more than this many (smallest) radii since that density was solved for
+#: (docs/mobility.md, "Warm-started non-collisional solve").
+NC_GUESS_MOVE = 0.5
 
 #: The fidelity knobs the lattice scenes declare (read by the fidelity study): the
 #: boundary-integral order and GMRES tolerance span the grid; ``m`` sets the size.
@@ -253,9 +261,20 @@ class LatticeScene:
         Candidate pairs of the initial configuration.
     step_index : int
         Steps taken so far.
+    far : str
+        Far-field engine of the boundary-integral mobility: ``"auto"`` (default: the FMM
+        from :data:`.bim.fmm.FAR_CROSSOVER_M` spheres on when fmm3dpy is importable),
+        ``"direct"`` or ``"fmm"``.  An attribute, not a parameter, so that stored sets
+        and simulations keep their recorded parameters; the results agree to the
+        tolerance either way.
+    krylov_mb : float
+        Memory budget (MB) of the kept Krylov directions of one step's operators
+        (:class:`.bim.recycle.KrylovBudget`).
     """
 
     fidelity_axes = LATTICE_AXES
+    far: str = "auto"
+    krylov_mb: float = ContactOptions.krylov_mb     # bim.recycle.DEFAULT_KRYLOV_MB
 
     def __init__(self, m: int = 3, *, params: Optional[LatticeParams] = None, **kwargs):
         if params is not None and kwargs:
@@ -284,6 +303,9 @@ class LatticeScene:
         self._prev_pairs = np.empty((0, 2), dtype=np.intp)
         self._prev_x = np.empty(0)
         self._prev_memory: Optional[SecantMemory] = None
+        self._nc_centers = np.empty((0, 3))       # where the kept density was solved for
+        self._nc_density = np.empty(0)
+        self._nc_cold = 0.0                       # applications of its solve from zero
 
     def get_state(self) -> dict:
         """The state that evolves from step to step, as arrays (for simulation checkpoints).
@@ -291,7 +313,10 @@ class LatticeScene:
         Everything else (radii, parameters) follows from ``params``, so
         ``set_state(get_state())`` on a scene made from the same parameters continues the
         same trajectory. ``memory_S`` and ``memory_Y`` hold the previous solve's
-        secant pairs (``qn_memory=True``; no columns otherwise).
+        secant pairs (``qn_memory=True``; no columns otherwise), ``nc_centers`` and
+        ``nc_density`` the non-collisional solve's density and where it was solved for
+        (the next guess; empty without one), ``nc_cold`` the inner applications of that
+        solve from zero.
         """
         mem = self._prev_memory
         empty = np.zeros((len(self._prev_pairs), 0))
@@ -299,7 +324,9 @@ class LatticeScene:
                 "step_index": np.array(self.step_index), "prev_pairs": self._prev_pairs.copy(),
                 "prev_x": self._prev_x.copy(),
                 "memory_S": empty if mem is None else mem.S.copy(),
-                "memory_Y": empty if mem is None else mem.Y.copy()}
+                "memory_Y": empty if mem is None else mem.Y.copy(),
+                "nc_centers": self._nc_centers.copy(), "nc_density": self._nc_density.copy(),
+                "nc_cold": np.array(self._nc_cold)}
 
     def set_state(self, state: dict) -> None:
         """Restore what :meth:`get_state` returned (a ``ValueError`` names a mismatch)."""
@@ -315,6 +342,11 @@ class LatticeScene:
         S = np.asarray(state.get("memory_S", np.zeros((0, 0))), dtype=np.float64)
         Y = np.asarray(state.get("memory_Y", np.zeros((0, 0))), dtype=np.float64)
         self._prev_memory = SecantMemory(S, Y) if S.ndim == 2 and S.shape[1] else None
+        self._nc_centers = np.asarray(state.get("nc_centers", np.empty((0, 3))),
+                                      dtype=np.float64).reshape(-1, 3)
+        self._nc_density = np.asarray(state.get("nc_density", np.empty(0)),
+                                      dtype=np.float64).reshape(-1)
+        self._nc_cold = float(state.get("nc_cold", 0.0))
 
     def fidelity_knobs(self, name: str) -> dict:
         """The knobs of low-fidelity ``name`` at this scene's order and tolerance.
@@ -369,25 +401,39 @@ class LatticeScene:
         :class:`SecantMemory`, None included, forgets them)."""
         self._prev_memory = memory if isinstance(memory, SecantMemory) else None
 
+    def nc_guess(self) -> Optional[np.ndarray]:
+        """The kept density of the non-collisional solve when no sphere moved more than
+        :data:`NC_GUESS_MOVE` radii since it was solved for, else None."""
+        if self._nc_density.size == 0 or self._nc_centers.shape != self.centers.shape:
+            return None
+        moved = float(np.max(np.linalg.norm(self.centers - self._nc_centers, axis=1)))
+        return self._nc_density if moved <= NC_GUESS_MOVE * float(np.min(self.radii)) else None
+
     def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None,
               lows: Optional[Sequence[str]] = None) -> ContactProblem:
         """The current step's contact problem (contacts, mobility, ``U_nc``, LCP).
 
         ``lows`` names the scene's low fidelities to build (default: all of ``params.low``);
-        a single-fidelity solver needs none, and each one costs a mobility set-up and a
-        timed product per step.  ``symmetrize`` is the option of
-        :class:`.problem.ContactOptions` (default: one forward solve per product; True
-        symmetrises the boundary-integral operators with the adjoint solve)."""
+        a single-fidelity solver needs none, and each one costs a mobility set-up per
+        step.  ``symmetrize`` is the option of :class:`.problem.ContactOptions` (default:
+        one forward solve per product; True symmetrises the boundary-integral operators
+        with the adjoint solve).  The non-collisional solve starts from :meth:`nc_guess`
+        (with ``warm_start``), and its density is kept for the next step."""
         P = self.params
         F, T = self.loads()
         options = ContactOptions(dt=P.dt, delta=P.delta, separation=P.separation,
                                  model=P.model, p=P.p, eps_gmres=P.eps_gmres, mu=P.mu,
                                  low=P.low if lows is None else tuple(lows),
-                                 symmetrize=symmetrize)
+                                 symmetrize=symmetrize, far=self.far,
+                                 krylov_mb=self.krylov_mb)
         problem = build_contact_problem(
             self.centers, self.radii, F, T, options=options,
             name=f"lattice-m{P.m}-step{self.step_index}",
-            meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed})
+            meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed},
+            nc_guess=self.nc_guess() if warm_start else None, nc_cold=self._nc_cold or None)
+        if problem.nc_density is not None:
+            self._nc_centers, self._nc_density = self.centers.copy(), problem.nc_density
+            self._nc_cold = float(problem.nc_cold_applications or 0.0)
         if warm_start and problem.contacts.n:
             x0 = self.warm_start(problem)
             if np.any(x0):

@@ -10,16 +10,56 @@ gradient does not matter).  The caller removes the pairs that need more than
 native-grid quadrature (and the sphere's own points) by direct summation and
 adds their accurate values: the usual FMM near-field correction.
 
-The FMM pays off only for large systems (on 2 cores roughly beyond 50-100k
-points, i.e. several hundred spheres at p = 8); below that the compiled direct
-sum is faster.
+Which engine is faster depends on the number of spheres: ``far="auto"``
+(:func:`resolve_far`) takes the FMM from :data:`FAR_CROSSOVER_M` spheres on, the
+crossover measured by ``benchmarks/far_crossover.py``, when fmm3dpy is importable.
 """
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 
-__all__ = ["check_fmm", "fmm_traction"]
+__all__ = ["check_fmm", "fmm_traction", "fmm_available", "resolve_far", "FAR_CROSSOVER_M",
+           "FAR_ENGINES"]
+
+FAR_ENGINES = ("auto", "direct", "fmm")
+"""The far-field engines a boundary-integral mobility accepts."""
+
+FAR_CROSSOVER_M = 1000
+"""Spheres from which ``far="auto"`` takes the FMM.  Measured by ``python
+benchmarks/far_crossover.py --m 2 3 4 5 6`` (p = 8, packed lattices; docs/benchmarks.md,
+"Live step hygiene"): the FMM's traction-operator product took 83, 22, 17, 4.0 and 4.1
+times the direct sums' at M = 8, 27, 64, 125 and 216 (ratios direct / fmm 0.012, 0.045,
+0.057, 0.252, 0.241): no measured size has the crossover, and from 125 to 216 both grow
+about like M, so it cannot be placed from these; 1000 is above every measured size (the
+script's extrapolation ``M / ratio`` from 216 gives 896).  Rerun the script with larger
+``--m`` to move it."""
+
+
+def fmm_available() -> bool:
+    """True when fmm3dpy can be imported (without importing it)."""
+    return importlib.util.find_spec("fmm3dpy") is not None
+
+
+def resolve_far(far: str, M: int) -> str:
+    """The engine ``far`` names for ``M`` spheres: ``"auto"`` is ``"fmm"`` from
+    :data:`FAR_CROSSOVER_M` spheres on when fmm3dpy is importable, else ``"direct"``;
+    ``"direct"`` and ``"fmm"`` are themselves.
+
+    Raises
+    ------
+    ValueError
+        ``far`` is not one of :data:`FAR_ENGINES`.
+    """
+    if far not in FAR_ENGINES:
+        raise ValueError(f"far = {far!r}; use 'direct' (compiled direct sums), 'fmm' "
+                         "(fmm3dpy.stfmm3d, install the extra 'fmm') or 'auto' (the FMM "
+                         f"from {FAR_CROSSOVER_M} spheres on when fmm3dpy is installed)")
+    if far != "auto":
+        return far
+    return "fmm" if M >= FAR_CROSSOVER_M and fmm_available() else "direct"
 
 
 def check_fmm() -> None:

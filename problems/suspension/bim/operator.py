@@ -90,7 +90,7 @@ from .blocks import StoredBlocks
 from .gmres import relaxed_gmres
 from .kernels import dense_rows
 from .pairs import RELAX_STEP, PairPlan
-from .recycle import RecycledGCR, default_capacity, solve_together
+from .recycle import BUDGET_FLOOR, KrylovBudget, RecycledGCR, default_capacity, solve_together
 from .setup import NEAR_UPSAMPLE, BimSetup
 from .sphere_vsh import default_quad_tol
 
@@ -99,6 +99,16 @@ __all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning"]
 
 class BimConvergenceWarning(RuntimeWarning):
     """GMRES stopped before reaching the requested tolerance."""
+
+
+def _plan_number(name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is the pair plan's ``name``."""
+    return property(lambda self: getattr(self.setup.plan, name), doc=doc)
+
+
+def _setup_number(name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is the set-up's ``name``."""
+    return property(lambda self: getattr(self.setup, name), doc=doc)
 
 
 class BimMobility(LinearOperator):
@@ -127,8 +137,14 @@ class BimMobility(LinearOperator):
         transposed equation each (:mod:`.recycle`): later solves start from the
         projection onto them and add directions only for what is left, at full accuracy
         (no relaxation), ending with one true-residual check.  Default: as many as fit
-        in 256 MB per equation.  0 turns recycling off: every solve is relaxed restarted
-        GMRES from the one-body approximation (:func:`.gmres.relaxed_gmres`).
+        in the Krylov budget (``krylov``).  0 turns recycling off: every solve is relaxed
+        restarted GMRES from the one-body approximation (:func:`.gmres.relaxed_gmres`).
+    krylov : KrylovBudget or float, optional
+        Memory budget of the kept directions (:class:`.recycle.KrylovBudget`), shared by
+        both equations, the twins (:meth:`at_tolerance`) and the split lows built on this
+        operator; a number is a new budget of that many MB (default
+        :data:`.recycle.DEFAULT_KRYLOV_MB`; 0 turns recycling off).  One budget per time
+        step bounds them all.
     maxiter : int
         Maximum total number of GMRES iterations per product.
     near_block_mb : float
@@ -139,9 +155,10 @@ class BimMobility(LinearOperator):
     quad_tol : float, optional
         Accuracy (per unit density) of the quadrature between spheres; default
         ``eps_gmres / 100`` (clamped to [1e-15, 1e-4]).
-    far : {"direct", "fmm"}
-        Far-field engine: compiled direct sums, or fmm3dpy's ``stfmm3d`` (extra
-        ``fmm``; pays off only for many grid points).
+    far : {"direct", "fmm", "auto"}
+        Far-field engine: compiled direct sums, fmm3dpy's ``stfmm3d`` (extra ``fmm``;
+        pays off only for many grid points), or ``auto``: the FMM from the measured
+        crossover on (:func:`.fmm.resolve_far`); ``setup.far`` is the engine used.
     near_upsample : float
         The traction of a close (expansion) pair is evaluated on the grid of order
         ``ceil(near_upsample * p)`` and projected onto degree p; 1 samples it at the
@@ -174,17 +191,22 @@ class BimMobility(LinearOperator):
                  mu: float = 1.0, on_failure: str = "warn", recycle: int | None = None,
                  maxiter: int = 500, near_block_mb: float = 4096.0,
                  quad_tol: float | None = None, far: str = "direct",
-                 near_upsample: float = NEAR_UPSAMPLE) -> None:
+                 near_upsample: float = NEAR_UPSAMPLE,
+                 krylov: KrylovBudget | float | None = None) -> None:
         eps = check_tolerance(eps_gmres)
+        budget = krylov if isinstance(krylov, KrylovBudget) else (
+            KrylovBudget() if krylov is None else KrylovBudget(krylov))
         tol = default_quad_tol(eps) if quad_tol is None else float(quad_tol)
         setup = BimSetup(centers, radii, p=p, mu=mu, quad_tol=tol, far=far,
                          near_upsample=near_upsample, near_block_mb=near_block_mb)
+        cap = (recycle if recycle is not None else 0 if budget.nbytes == 0
+               else max(default_capacity(setup.unknowns, budget.megabytes), BUDGET_FLOOR))
         self._assemble(setup, StoredBlocks(setup.plan), eps_gmres=eps, on_failure=on_failure,
-                       maxiter=maxiter,
-                       recycle=default_capacity(setup.unknowns) if recycle is None else recycle)
+                       maxiter=maxiter, recycle=cap, krylov=budget)
 
     def _assemble(self, setup: BimSetup, near, *, eps_gmres: float, on_failure: str,
-                  maxiter: int, recycle: int, pieces: AdjointPieces | None = None) -> None:
+                  maxiter: int, recycle: int, krylov: KrylovBudget,
+                  pieces: AdjointPieces | None = None) -> None:
         """Builds the operator on a set-up and a near-field part (the constructor, the twins
         of :meth:`at_tolerance` and :mod:`.split` share this)."""
         if on_failure not in ("warn", "raise"):
@@ -194,29 +216,15 @@ class BimMobility(LinearOperator):
         self.eps_gmres = float(eps_gmres)
         self.on_failure, self.maxiter = on_failure, int(maxiter)
         self.recycle = max(int(recycle), 0)
+        self.krylov = krylov
         self._pieces = pieces
         self._fresh_solvers()
 
     # ---- what the set-up shows --------------------------------------------------------------
-    @property
-    def M(self) -> int:
-        """Number of spheres."""
-        return self.setup.M
-
-    @property
-    def p(self) -> int:
-        """Spherical-harmonic order."""
-        return self.setup.p
-
-    @property
-    def N(self) -> int:
-        """Grid points per sphere."""
-        return self.setup.N
-
-    @property
-    def mu(self) -> float:
-        """Viscosity."""
-        return self.setup.mu
+    M = _setup_number("M", "Number of spheres.")
+    p = _setup_number("p", "Spherical-harmonic order.")
+    N = _setup_number("N", "Grid points per sphere.")
+    mu = _setup_number("mu", "Viscosity.")
 
     @property
     def quad_tol(self) -> float:
@@ -240,35 +248,20 @@ class BimMobility(LinearOperator):
         ``n_near_pairs`` and ``n_block_pairs`` summarise the set-up."""
         return self.setup.plan
 
-    @property
-    def tolerance_ladder(self) -> tuple:
-        """Quadrature accuracies of the rungs of relaxed GMRES (first = ``quad_tol``)."""
-        return self.setup.plan.tolerance_ladder
-
-    @property
-    def level_radii(self) -> dict:
-        """Source-grid order -> scaled distance beyond which it is accurate to ``quad_tol``."""
-        return self.setup.plan.level_radii
-
-    @property
-    def pairs_per_level(self) -> dict:
-        """Source-grid order -> ordered pairs summed directly on it at full accuracy."""
-        return self.setup.plan.pairs_per_level
-
-    @property
-    def n_far_pairs(self) -> int:
-        """Ordered pairs handled by direct quadrature (not blocked)."""
-        return self.setup.plan.n_far_pairs
-
-    @property
-    def n_near_pairs(self) -> int:
-        """Ordered pairs too close for any source grid (expansions)."""
-        return self.setup.plan.n_near_pairs
-
-    @property
-    def n_block_pairs(self) -> int:
-        """Ordered pairs whose dense block is stored."""
-        return self.setup.plan.n_block_pairs
+    tolerance_ladder = _plan_number(
+        "tolerance_ladder", "Quadrature accuracies of the rungs of relaxed GMRES (first = "
+        "``quad_tol``).")
+    level_radii = _plan_number(
+        "level_radii", "Source-grid order -> scaled distance beyond which it is accurate to "
+        "``quad_tol``.")
+    pairs_per_level = _plan_number(
+        "pairs_per_level", "Source-grid order -> ordered pairs summed directly on it at full "
+        "accuracy.")
+    n_far_pairs = _plan_number("n_far_pairs", "Ordered pairs handled by direct quadrature "
+                               "(not blocked).")
+    n_near_pairs = _plan_number("n_near_pairs", "Ordered pairs too close for any source grid "
+                                "(expansions).")
+    n_block_pairs = _plan_number("n_block_pairs", "Ordered pairs whose dense block is stored.")
 
     @property
     def recycled_directions(self) -> int:
@@ -286,8 +279,8 @@ class BimMobility(LinearOperator):
         # a reference cycle, and the blocks and kept directions of every configuration would
         # wait for Python's cyclic collector (docs/mobility.md, "Memory per time step")
         me = weakref.ref(self)
-        return (RecycledGCR(lambda v: me().apply_preconditioned(v), n, cap),
-                RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap))
+        return (RecycledGCR(lambda v: me().apply_preconditioned(v), n, cap, self.krylov),
+                RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap, self.krylov))
 
     @contextlib.contextmanager
     def cold_products(self) -> Iterator[None]:
@@ -325,7 +318,8 @@ class BimMobility(LinearOperator):
         (the set-up with its pair plan and stored near blocks, the transposed pieces), so
         it costs no second set-up; it has its own recycled spaces and records, so that its
         products neither use nor feed this operator's kept directions (each product's
-        cost stays its own, as a low fidelity's cost ratio needs).  This is how a low
+        cost stays its own, as a low fidelity's cost ratio needs), and those spaces count
+        against this operator's Krylov budget (:attr:`krylov`).  This is how a low
         fidelity of the high's own order, e.g. ``p8e3`` beside ``p = 8, eps 1e-8``, is
         built: it differs from the high only by where GMRES stops.
 
@@ -337,7 +331,8 @@ class BimMobility(LinearOperator):
         eps = check_tolerance(eps_gmres)
         twin = BimMobility.__new__(BimMobility)
         twin._assemble(self.setup, self.near, eps_gmres=eps, on_failure=self.on_failure,
-                       maxiter=self.maxiter, recycle=self.recycle, pieces=self.adjoint_pieces)
+                       maxiter=self.maxiter, recycle=self.recycle, krylov=self.krylov,
+                       pieces=self.adjoint_pieces)
         return twin
 
     # ---- the pieces of the product -----------------------------------------------------------
@@ -403,12 +398,13 @@ class BimMobility(LinearOperator):
         return x
 
     def _recycled_solve(self, what: str, solver: RecycledGCR, b: np.ndarray,
-                        records: tuple[list, list]) -> np.ndarray:
-        """:meth:`RecycledGCR.solve` to ``eps_gmres`` within ``maxiter`` new directions;
-        records the iterations (new directions plus the residual checks: the products
-        made) and the true residual, and reports non-convergence (:meth:`_report`)."""
+                        records: tuple[list, list], x0: np.ndarray | None = None
+                        ) -> np.ndarray:
+        """:meth:`RecycledGCR.solve` to ``eps_gmres`` within ``maxiter`` new directions
+        (from the guess ``x0``); records the products made and the true residual, and
+        reports non-convergence (:meth:`_report`)."""
         before = solver.products
-        y, _new, res = solver.solve(b, self.eps_gmres, self.maxiter)
+        y, _new, res = solver.solve(b, self.eps_gmres, self.maxiter, x0=x0)
         self._record(what, solver.products - before, res, records)
         return y
 
@@ -432,18 +428,41 @@ class BimMobility(LinearOperator):
 
     def solve_density(self, ft: np.ndarray) -> np.ndarray:
         """Solve the traction equation for forces and torques ``ft`` (length 6M)."""
+        return self.precondition(self._solve_preconditioned(ft))
+
+    def _solve_preconditioned(self, ft: np.ndarray, guess: np.ndarray | None = None
+                              ) -> np.ndarray:
+        """The solution ``y`` of ``G y = Bt ft`` (density ``P y``), from ``guess`` if given."""
         records = (self.gmres_iterations, self.residuals)
         b = self.rhs(ft)
         if float(np.linalg.norm(b)) == 0.0:
             self._record("BIM GMRES", 0, 0.0, records)
             return np.zeros_like(b)
         if self._recycler is not None:
-            return self.precondition(self._recycled_solve("BIM GMRES", self._recycler, b,
-                                                          records))
-        y0 = self.setup.unprecondition(self.precondition(b))
-        y = self._solve("BIM GMRES", self.apply_preconditioned, b, y0,
-                        len(self.plan.dir_ranges), records)
-        return self.precondition(y)
+            return self._recycled_solve("BIM GMRES", self._recycler, b, records, x0=guess)
+        y0 = (self.setup.unprecondition(self.precondition(b)) if guess is None
+              else np.asarray(guess, dtype=float))
+        return self._solve("BIM GMRES", self.apply_preconditioned, b, y0,
+                           len(self.plan.dir_ranges), records)
+
+    @on_one_blas_thread
+    def solve_loads(self, ft: np.ndarray, guess: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(M ft, y)``: the product and the solution ``y`` of the preconditioned traction
+        equation, started from ``guess`` (the ``y`` of a nearby configuration, e.g. the
+        previous step's: the densities live on grids that move with the spheres).  The
+        guess costs one product (its residual) and is dropped when that residual is not
+        below the right-hand side.  ``ValueError`` for loads without 6M finite entries or
+        a guess without ``3 N M`` finite ones."""
+        ft = self._checked_loads(ft, "forces/torques")
+        if guess is not None:
+            guess = np.asarray(guess, dtype=float).reshape(-1)
+            if guess.size != self.setup.unknowns or not np.isfinite(guess).all():
+                raise ValueError(f"the guess has {guess.size} entries; the densities of "
+                                 f"{self.M} spheres at p = {self.p} need {self.setup.unknowns} "
+                                 "finite ones (pass None for no guess)")
+        y = self._solve_preconditioned(ft, guess)
+        return self.velocities(self.precondition(y)).reshape(-1), y
 
     def solve_adjoint(self, z: np.ndarray) -> np.ndarray:
         """Solve ``G' w = z`` by GMRES (tolerance ``eps_gmres``, same restart and maxiter as
@@ -543,7 +562,8 @@ class BimMobility(LinearOperator):
 
 def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
                  mu: float = 1.0, far: str = "direct",
-                 quad_tol: float | None = None) -> BimMobility:
+                 quad_tol: float | None = None,
+                 krylov: KrylovBudget | float | None = None) -> BimMobility:
     """Boundary-integral mobility operator of rigid spheres.
 
     Parameters
@@ -560,6 +580,8 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         Far-field engine (see :class:`BimMobility`); "fmm" needs fmm3dpy.
     quad_tol : float, optional
         Quadrature accuracy between spheres (default ``eps_gmres / 100``).
+    krylov : KrylovBudget or float, optional
+        Budget of the kept Krylov directions (see :class:`BimMobility`).
 
     Returns
     -------
@@ -569,4 +591,4 @@ def bim_mobility(centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
         the iterations of every product.
     """
     return BimMobility(centers, radii, p=p, eps_gmres=eps_gmres, mu=mu, far=far,
-                       quad_tol=quad_tol)
+                       quad_tol=quad_tol, krylov=krylov)

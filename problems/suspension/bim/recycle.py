@@ -28,13 +28,28 @@ when the bound allowed skipping the check, the recurrence within that bound.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable
+from typing import Optional
 
 import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-__all__ = ["RecycledGCR", "default_capacity", "solve_together"]
+__all__ = ["RecycledGCR", "KrylovBudget", "DEFAULT_KRYLOV_MB", "BUDGET_FLOOR",
+           "default_capacity", "solve_together"]
+
+DEFAULT_KRYLOV_MB = 256.0
+"""Default budget (MB) of the kept Krylov directions of one time step: every recycled space
+of the step's operators (the high's forward and transposed spaces, its twins at other GMRES
+tolerances, the distance-split lows, another order's lows when they are given the same
+budget) together, two float64 vectors per direction (:class:`KrylovBudget`)."""
+
+BUDGET_FLOOR = 60
+"""Directions every recycled space may keep whatever the shared budget says (the restart
+length of the un-recycled GMRES): a solve always has a Krylov space to work in, so a full
+budget makes later solves truncated GCR, never a failure.  The budget is therefore
+exceeded by at most this many directions per space."""
 
 _BREAKDOWN = 1e-14
 """A new image ``G u`` whose part outside the kept space is below this fraction of its
@@ -52,10 +67,68 @@ _MAX_CHECKS = 5
 to agree with the operator (the caller reports the measured residual)."""
 
 
-def default_capacity(n: int, megabytes: float = 256.0) -> int:
+def default_capacity(n: int, megabytes: float = DEFAULT_KRYLOV_MB) -> int:
     """Directions a kept space of vectors of length ``n`` may hold within ``megabytes``
     (two float64 vectors per direction)."""
     return max(0, int(megabytes * 1e6 // (16 * max(int(n), 1))))
+
+
+class KrylovBudget:
+    """One memory budget for the kept directions of several :class:`RecycledGCR` spaces.
+
+    The operators of one time step (the high fidelity's forward and transposed spaces,
+    its twins at other tolerances, the distance-split lows) each keep a recycled space;
+    with a budget each space joins it, and a space grows only while the directions held
+    by all members together fit in ``megabytes`` (below :data:`BUDGET_FLOOR` directions a
+    space always grows).  A space that may not grow replaces its oldest direction instead
+    (truncated GCR: the residual recurrence stays exact).  Members are held weakly: a
+    space that is collected gives its share back.
+
+    Parameters
+    ----------
+    megabytes : float
+        The budget in MB (1e6 bytes), >= 0 (default :data:`DEFAULT_KRYLOV_MB`).
+
+    Raises
+    ------
+    ValueError
+        ``megabytes`` is not a finite number >= 0.
+    """
+
+    def __init__(self, megabytes: float = DEFAULT_KRYLOV_MB) -> None:
+        try:
+            mb = float(megabytes)
+        except (TypeError, ValueError):
+            mb = float("nan")
+        if isinstance(megabytes, bool) or not (np.isfinite(mb) and mb >= 0):
+            raise ValueError(f"Krylov budget {megabytes!r} MB must be a finite number >= 0 "
+                             f"(memory of the kept directions of one step, e.g. "
+                             f"{DEFAULT_KRYLOV_MB:g}; 0 turns recycling off)")
+        self.megabytes = mb
+        self.nbytes = int(mb * 1e6)
+        self._members: weakref.WeakSet = weakref.WeakSet()
+
+    def join(self, space: RecycledGCR) -> None:
+        """Count ``space``'s directions against this budget."""
+        self._members.add(space)
+
+    @property
+    def used(self) -> int:
+        """Bytes held by the members' kept directions now."""
+        return sum(16 * s.n * s.size for s in list(self._members))
+
+    @property
+    def members(self) -> int:
+        """Spaces counted against the budget now."""
+        return len(self._members)
+
+    def may_grow(self, space: RecycledGCR) -> bool:
+        """Whether ``space`` may keep one more direction."""
+        return space.size < BUDGET_FLOOR or self.used + 16 * space.n <= self.nbytes
+
+    def __repr__(self) -> str:
+        return (f"<KrylovBudget {self.megabytes:g} MB, {self.used / 1e6:.1f} MB used by "
+                f"{self.members} spaces>")
 
 
 class RecycledGCR:
@@ -71,6 +144,9 @@ class RecycledGCR:
         Most directions kept; when full, a new direction replaces the oldest (truncated
         GCR, which keeps the residual recurrence exact).  0 keeps nothing between solves:
         every solve is then full GCR (GMRES) from zero.
+    budget : KrylovBudget, optional
+        A memory budget shared with other spaces: the space stops growing (and replaces
+        its oldest direction) when the members' directions together would exceed it.
 
     Attributes
     ----------
@@ -81,10 +157,13 @@ class RecycledGCR:
     """
 
     def __init__(self, apply: Callable[[np.ndarray], np.ndarray], n: int,
-                 capacity: int) -> None:
+                 capacity: int, budget: Optional[KrylovBudget] = None) -> None:
         self.apply = apply
         self.n = int(n)
         self.capacity = max(0, int(capacity))
+        self.budget = budget if self.capacity else None
+        if self.budget is not None:
+            self.budget.join(self)
         self._U = np.empty((0, self.n))          # ring buffers, rows [0, _filled) valid
         self._C = np.empty((0, self.n))
         self._filled = 0
@@ -109,11 +188,17 @@ class RecycledGCR:
             self._U, self._C = U, C
 
     def _add(self, u: np.ndarray, c: np.ndarray) -> None:
-        rows = self._C.shape[0]
-        self._U[self._next] = u
-        self._C[self._next] = c
-        self._next = (self._next + 1) % rows
-        self._filled = min(self._filled + 1, rows)
+        """Keep a direction: in a new row while there is room (and the budget allows),
+        else in place of the oldest."""
+        if self._filled < self._C.shape[0] and (self.budget is None
+                                                or self.budget.may_grow(self)):
+            i = self._filled
+            self._filled += 1
+        else:
+            i = self._next % self._filled
+            self._next = i + 1
+        self._U[i] = u
+        self._C[i] = c
 
     def _project(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(U' h, C' h)`` with ``h = C v`` over the directions held: the part of ``v`` in
@@ -124,7 +209,8 @@ class RecycledGCR:
         h = self._C[:k] @ v
         return h @ self._U[:k], h @ self._C[:k]
 
-    def solve(self, b: np.ndarray, rtol: float, maxiter: int) -> tuple[np.ndarray, int, float]:
+    def solve(self, b: np.ndarray, rtol: float, maxiter: int,
+              x0: Optional[np.ndarray] = None) -> tuple[np.ndarray, int, float]:
         """Solve ``G y = b`` to relative residual ``rtol``.
 
         Parameters
@@ -134,6 +220,11 @@ class RecycledGCR:
             Relative tolerance on the true residual ``||b - G y|| / ||b||``.
         maxiter : int
             Most new directions (products) of this solve, residual checks not included.
+        x0 : ndarray, optional
+            An initial guess (e.g. the solution of a nearby system): the solve starts from
+            ``x0`` plus the projection of its residual onto the kept space, at the price
+            of one product for that residual (counted in :attr:`products`); a guess whose
+            residual is not below ``||b||`` is dropped (the solve starts from zero).
 
         Returns
         -------
@@ -144,9 +235,11 @@ class RecycledGCR:
             Relative residual of ``y``: measured with one more product, or the recurrence
             when its rounding bound is below a tenth of ``rtol`` (see the module docs).
         """
-        return solve_together([(self, b)], lambda vs: [self.apply(vs[0])], rtol, maxiter)[0]
+        return solve_together([(self, b)], lambda vs: [self.apply(vs[0])], rtol, maxiter,
+                              x0=[x0])[0]
 
-    def iterate(self, b: np.ndarray, rtol: float, maxiter: int):
+    def iterate(self, b: np.ndarray, rtol: float, maxiter: int,
+                x0: Optional[np.ndarray] = None):
         """The solve of :meth:`solve` as a generator: it yields every vector whose product
         it needs and is sent the product back; its return value is ``(y, iterations,
         residual)``.  :func:`solve_together` drives several at once."""
@@ -156,10 +249,17 @@ class RecycledGCR:
             return np.zeros(self.n), 0, 0.0
         keep = self.capacity > 0
         self._reserve(self.capacity if keep else max(int(maxiter), 1))
+        y, r = np.zeros(self.n), b.copy()
+        if x0 is not None and np.any(x0):
+            guess = np.array(x0, dtype=np.float64).reshape(-1)
+            r0 = b - self._image((yield guess))
+            if float(np.linalg.norm(r0)) < nb:          # the guess helps: start from it
+                y, r = guess, r0
         k = self._filled
-        h = self._C[:k] @ b
-        y = h @ self._U[:k] if k else np.zeros(self.n)
-        r = b - h @ self._C[:k] if k else b.copy()
+        h = self._C[:k] @ r
+        if k:
+            y += h @ self._U[:k]
+            r -= h @ self._C[:k]
         # sum of |coefficients| of y in the directions: bounds the rounding drift
         weight = float(np.abs(h).sum())
         its = checks = 0
@@ -219,7 +319,8 @@ class RecycledGCR:
 
 
 def solve_together(jobs: list, apply_many: Callable[[list], list], rtol: float,
-                   maxiter: int) -> list[tuple[np.ndarray, int, float]]:
+                   maxiter: int, x0: Optional[list] = None
+                   ) -> list[tuple[np.ndarray, int, float]]:
     """Run several :meth:`RecycledGCR.solve` in lock step, so that their products can be
     made in one pass (for example a forward and a transposed solve reading the same stored
     blocks once).
@@ -233,12 +334,15 @@ def solve_together(jobs: list, apply_many: Callable[[list], list], rtol: float,
         needs no product this round, and returns the images in the same places.
     rtol, maxiter
         As in :meth:`RecycledGCR.solve`, for every job.
+    x0 : list, optional
+        An initial guess per job (None entries: none).
 
     Returns
     -------
     list of (y, iterations, residual), one per job.
     """
-    gens = [solver.iterate(b, rtol, maxiter) for solver, b in jobs]
+    guesses = x0 if x0 is not None else [None] * len(jobs)
+    gens = [solver.iterate(b, rtol, maxiter, g) for (solver, b), g in zip(jobs, guesses)]
     out: list = [None] * len(gens)
     need: list = [None] * len(gens)
     with one_blas_thread():           # the orthogonalisation: vector work beside the kernels

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import check_configuration, check_no_overlap, check_order, check_viscosity
+from .fmm import resolve_far
 from .kernels import (
     PARALLEL_WORK,
     center_readout,
@@ -59,8 +60,9 @@ class BimSetup:
         Viscosity.
     quad_tol : float
         Accuracy (per unit density) of the quadrature between spheres, in (0, 1).
-    far : {"direct", "fmm"}
-        Far-field engine.
+    far : {"direct", "fmm", "auto"}
+        Far-field engine (``auto``: :func:`.fmm.resolve_far`, by the number of spheres);
+        :attr:`far` is the engine used.
     near_upsample : float
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
@@ -79,9 +81,7 @@ class BimSetup:
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
         check_no_overlap(c, r, "bim")
-        if far not in ("direct", "fmm"):
-            raise ValueError(f"far = {far!r}; use 'direct' (compiled direct sums) or 'fmm' "
-                             "(fmm3dpy.stfmm3d, install the extra 'fmm')")
+        far = resolve_far(far, c.shape[0])
         if not (np.isfinite(quad_tol) and 0 < quad_tol < 1):
             raise ValueError(f"quad_tol = {quad_tol!r} must be a number in (0, 1), e.g. 1e-10 "
                              "(accuracy of the quadrature between spheres)")

@@ -31,9 +31,15 @@ eigenvalues).  Eigenvalues on the unit sphere, mu = 1:
 
 from __future__ import annotations
 
+import hashlib
+import os
+import tempfile
+import warnings
 from dataclasses import dataclass
 from functools import cache
 from math import factorial
+from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -43,7 +49,8 @@ __all__ = ["SphereGrid", "VSHBasis", "SelfOperators", "sphere_grid", "vsh_basis"
            "self_operators", "s_eigenvalue", "traction_eigenvalue", "knm_table",
            "rigid_density", "net_force_torque", "expansion_coefficients", "default_quad_tol",
            "grid_levels", "sampled_basis", "upsampling_matrix", "quadrature_errors", "quadrature_radius",
-           "RHO_GRID", "expansion_factors", "coefficient_matrix"]
+           "RHO_GRID", "expansion_factors", "coefficient_matrix", "quadrature_cache_dir",
+           "QUADRATURE_CACHE_VERSION"]
 
 TYPES = ("V", "W", "X")
 
@@ -495,9 +502,81 @@ def quadrature_errors(p: int, q: int, rho: np.ndarray, seed: int = 1) -> np.ndar
     return np.abs(dr - ex).reshape(rho.size, -1).max(axis=1)
 
 
+QUADRATURE_CACHE_VERSION = 1
+"""Version of the measured quadrature-error tables kept on disk; raise it when
+:func:`quadrature_errors` changes what it measures (old files are then rebuilt)."""
+
+
+def quadrature_cache_dir() -> Path:
+    """Where the quadrature-error tables are kept: ``$XDG_CACHE_HOME/lcpbench/quadrature``
+    (``XDG_CACHE_HOME`` defaults to ``~/.cache``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or ""
+    root = Path(base) if base.strip() and Path(base).is_absolute() else Path.home() / ".cache"
+    return root / "lcpbench" / "quadrature"
+
+
+def _table_path(p: int, q: int, seed: int) -> Path:
+    """The file of one table, keyed by ``(p, q, RHO_GRID, seed, version)``."""
+    grid = hashlib.sha256(np.ascontiguousarray(RHO_GRID).tobytes()).hexdigest()[:16]
+    return (quadrature_cache_dir()
+            / f"p{p}-q{q}-seed{seed}-v{QUADRATURE_CACHE_VERSION}-rho{grid}.npz")
+
+
+def _read_table(path: Path, p: int, q: int, seed: int) -> Optional[np.ndarray]:
+    """The table stored in ``path`` if it is the one asked for, else None (with a warning
+    naming the file when it exists but does not match)."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            key = tuple(int(f[k]) for k in ("p", "q", "seed", "version"))
+            rho, err = np.asarray(f["rho"], dtype=float), np.asarray(f["errors"], dtype=float)
+        ok = (key == (p, q, seed, QUADRATURE_CACHE_VERSION) and rho.shape == RHO_GRID.shape
+              and np.array_equal(rho, RHO_GRID) and err.shape == RHO_GRID.shape
+              and bool(np.all(np.isfinite(err) & (err >= 0))))
+        why = "its key or values do not match"
+    except Exception as exc:                      # truncated, not an npz, missing member
+        ok, why = False, f"{type(exc).__name__}: {exc}"
+    if ok:
+        return err
+    warnings.warn(f"quadrature-error table {path} is not valid ({why}); measuring it again "
+                  "and replacing the file", RuntimeWarning, stacklevel=3)
+    return None
+
+
+def _write_table(path: Path, p: int, q: int, seed: int, err: np.ndarray) -> None:
+    """Store a table atomically (temporary file beside it, fsync, rename); a cache that
+    cannot be written is skipped with a warning (the table is then measured per process)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, p=p, q=q, seed=seed, version=QUADRATURE_CACHE_VERSION,
+                         rho=RHO_GRID, errors=err)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except OSError as exc:
+        warnings.warn(f"cannot keep the quadrature-error table in {path.parent} ({exc}); it "
+                      "will be measured again by the next process (set XDG_CACHE_HOME to a "
+                      "writable folder)", RuntimeWarning, stacklevel=3)
+
+
 @cache
-def _error_table(p: int, q: int) -> np.ndarray:
-    return quadrature_errors(p, q, RHO_GRID, seed=0)
+def _error_table(p: int, q: int, seed: int = 0) -> np.ndarray:
+    """:func:`quadrature_errors` on :data:`RHO_GRID`: once per process, and once per
+    machine through the disk cache (:func:`quadrature_cache_dir`), validated on read."""
+    path = _table_path(p, q, seed)
+    err = _read_table(path, p, q, seed)
+    if err is None:
+        err = quadrature_errors(p, q, RHO_GRID, seed=seed)
+        _write_table(path, p, q, seed, err)
+    err.setflags(write=False)
+    return err
 
 
 def quadrature_radius(p: int, q: int, tol: float) -> float:
@@ -506,7 +585,8 @@ def quadrature_radius(p: int, q: int, tol: float) -> float:
 
     Measured, not modelled: the traction of four random band-limited densities in 144
     directions is compared with the exact exterior expansion at the distances
-    :data:`RHO_GRID` (1.02 to ~400 radii, 4 % apart; once per ``(p, q)``, cached); the
+    :data:`RHO_GRID` (1.02 to ~400 radii, 4 % apart; once per ``(p, q)``, kept in memory
+    and on disk, :func:`quadrature_cache_dir`); the
     radius is the grid distance just above the farthest one where the error exceeds
     ``tol / 4`` (a factor 4 margin for densities other than the samples).  ``inf`` when that happens at the last grid distance.
     """

@@ -251,7 +251,7 @@ class SplitMobility(BimMobility):
 
     def __init__(self, high: BimMobility, near: SplitBlocks, eps_gmres: float) -> None:
         self._assemble(high.setup, near, eps_gmres=eps_gmres, on_failure=high.on_failure,
-                       maxiter=high.maxiter, recycle=high.recycle)
+                       maxiter=high.maxiter, recycle=high.recycle, krylov=high.krylov)
 
     def __getattr__(self, name: str):
         # the split's numbers (far_degree, block_work, ...) are its near part's
