@@ -67,12 +67,12 @@ def measure(m: int, p: int, repeat: int, pack: int, products: bool) -> dict:
     for k in range(repeat):                    # alternate the engines, one call each
         for far in (("direct", "fmm") if k % 2 == 0 else ("fmm", "direct")):
             A = ops[far]
-            t, g = _timed(lambda: A.apply_preconditioned(y), 1)
+            t, g = _timed(lambda A=A: A.apply_preconditioned(y), 1)
             row.setdefault(f"apply_{far}", []).append(t)
             u = None
             if products:
                 with A.cold_products():
-                    t, u = _timed(lambda: A @ f, 1)
+                    t, u = _timed(lambda A=A: A @ f, 1)
                 row.setdefault(f"product_{far}", []).append(t)
             out[far] = (g, u)
     for key in [k for k in row if isinstance(row[k], list)]:

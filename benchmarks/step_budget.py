@@ -147,7 +147,7 @@ def nc_saving(state: Path, m: int, p: int, solver: str, steps: int) -> None:
             scene = scenes[kind]
             built = []
             real = scene.build
-            scene.build = lambda *a, _real=real, **kw: built.append(_real(*a, **kw)) or built[-1]
+            scene.build = lambda *a, _real=real, _b=built, **kw: _b.append(_real(*a, **kw)) or _b[-1]
             scene.step(solver, qn_memory=True)
             del scene.build
             prob = built[0]
