@@ -16,11 +16,16 @@ nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`, :mod:`.adjoint`) c
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 
+from lcpbench.toolkit.blas import one_blas_thread
+
+from .coaxial import RHO_MIN, coaxial_table, table_range
 from .kernels import real_block_columns, traction_response
+from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
     VSHBasis,
@@ -31,7 +36,7 @@ from .sphere_vsh import (
     sphere_grid,
 )
 
-__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "csr"]
+__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "PAIR_BLOCKS", "csr"]
 
 PROJECT_RHO = 3.0
 """Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
@@ -39,6 +44,10 @@ with the projected near field, whatever the quadrature tolerance, so that the
 discretisation does not change with ``eps_gmres``; beyond, values at the nodes
 (quadrature, or expansions at tight tolerances).  The measured choice of the radius:
 docs/mobility.md, "Measured choices behind the defaults"."""
+
+PAIR_BLOCKS = ("table", "direct")
+"""How the stored blocks are built: from the coaxial table and rotations where it applies,
+or all directly (the reference)."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -95,6 +104,8 @@ class PairPlan:
         Far-field engine (the FMM works on the native grid and is not relaxed).
     near_block_mb : float
         Memory budget of the stored blocks.
+    pair_blocks : {"table", "direct"}
+        How the stored blocks are built (see :meth:`_build_blocks`).
 
     Attributes
     ----------
@@ -106,6 +117,8 @@ class PairPlan:
         Source-grid order -> ordered pairs summed directly on it at full accuracy.
     n_far_pairs, n_near_pairs, n_block_pairs : int
         Pairs by direct quadrature (not blocked), by expansions, with a stored block.
+    n_table_blocks : int
+        Stored blocks taken from the coaxial table (the others are built directly).
     blocks, block_tgt, block_src, block_ptr : ndarray
         Stored blocks (traction on sphere i per VSH coefficient of sphere j), sorted by
         target sphere.
@@ -121,7 +134,12 @@ class PairPlan:
     """
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
-                 quad_tol: float, far: str, near_block_mb: float) -> None:
+                 quad_tol: float, far: str, near_block_mb: float,
+                 pair_blocks: str = "table") -> None:
+        if pair_blocks not in PAIR_BLOCKS:
+            raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'table' (coaxial table and "
+                             "rotations) or 'direct' (every block built directly)")
+        self.pair_blocks = pair_blocks
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
         self.quad_tol, self.far = quad_tol, far
         self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
@@ -246,7 +264,8 @@ class PairPlan:
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
         closest pairs first, within the memory budget; the other expansion pairs
-        are kept for on-the-fly evaluation.
+        are kept for on-the-fly evaluation (with one warning saying how many pairs the
+        budget left unblocked and what they would need).
 
         A block is stored in coefficients on both sides, ``A E`` (``nv x nv``: the
         traction's VSH coefficients of degree <= p per density coefficient), not as nodal
@@ -257,29 +276,102 @@ class PairPlan:
         the complement of a block's output never reaches a velocity (``tests/test_bim.py``
         checks it; docs/mobility.md has what it saves).
 
-        This direct build (one exact-expansion response per pair) is where precomputed
-        rotation tables would enter: a table lookup of the pair's scaled distance and a
-        rotation of the coefficients into the pair's direction would replace it."""
-        M, p = self.M, self.p
-        b = self.basis
-        nv = b.B.shape[1]
-        flat = np.argmax(np.abs(b.to_complex), axis=0)
-        cfac = b.to_complex[flat, np.arange(nv)]
+        With ``pair_blocks="table"`` the blocks of equal-radius pairs come from the
+        coaxial table (:mod:`.coaxial`) rotated into the pair's direction
+        (:mod:`.rotation`); pairs of unequal radii (the radius ratio would be a second
+        table axis), beyond the table's range or at p = 1 are built directly
+        (:meth:`_direct_blocks`, the reference, also used for every pair with
+        ``pair_blocks="direct"``)."""
+        M = self.M
+        nv = self.basis.B.shape[1]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
         # than p (a stored block is then much cheaper per product than the sum; measured in
         # docs/mobility.md, "Blocks for fine-grid pairs")
         lv = self.level_of
-        fine = [L for L, q in enumerate(self.levels) if q > p]
+        fine = [L for L, q in enumerate(self.levels) if q > self.p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
         pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
-            d = np.array([np.linalg.norm(self.centers[i] - self.centers[j]) - self.radii[i]
-                          for i, j in pairs]) / np.array([self.radii[j] for _, j in pairs])
-            pairs = [pairs[k] for k in np.argsort(d, kind="stable")]
+            pairs = [pairs[k] for k in np.argsort(self._rho(ii, jj), kind="stable")]
         per_block = nv * nv * 8 / 2 ** 20
         nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
         blocked, rest = pairs[:nb], pairs[nb:]
+        if rest:
+            warnings.warn(f"near_block_mb = {self.near_block_mb:g} leaves {len(rest)} of "
+                          f"{len(pairs)} near pairs without a stored block (they would need "
+                          f"{len(rest) * per_block:.0f} MB more); they are evaluated on the fly "
+                          "at every product: raise near_block_mb to store them",
+                          RuntimeWarning, stacklevel=4)
         blocked.sort()                                     # grouped by target sphere
+        with one_blas_thread():
+            self.blocks = self._block_values(blocked)
+        b = self.basis
+        self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
+        self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
+        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
+        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
+        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
+        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
+        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
+        for i, j in rest:
+            if self.level_of[i, j] == -2:
+                zone = self.near_proj is None or self._projected(i, j)
+                (lists if zone else node_lists)[i].append(j)
+        self.blocked = np.zeros((M, M), dtype=bool)
+        for i, j in blocked:
+            self.blocked[i, j] = True
+        self.fly_ptr, self.fly_idx = csr(lists)
+        self.flyn_ptr, self.flyn_idx = csr(node_lists)
+        self.n_block_pairs = len(blocked)
+
+    def _rho(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Scaled distances ``(d_ij - a_i)/a_j`` of the pairs ``(ii, jj)``."""
+        d = np.linalg.norm(self.centers[ii] - self.centers[jj], axis=-1)
+        return (d - self.radii[ii]) / self.radii[jj]
+
+    def _block_values(self, blocked: list[tuple[int, int]]) -> np.ndarray:
+        """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
+        coaxial table where it applies (``pair_blocks="table"``), else built directly."""
+        nv = self.basis.B.shape[1]
+        E = np.empty((len(blocked), nv, nv))
+        ii = np.array([i for i, _ in blocked], dtype=np.int64)
+        jj = np.array([j for _, j in blocked], dtype=np.int64)
+        use = np.zeros(len(blocked), dtype=bool)
+        if self.pair_blocks == "table" and self.p >= 2 and len(blocked):
+            rho = self._rho(ii, jj)
+            same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
+            rho_max = table_range(self.p)
+            use = same & (rho >= RHO_MIN) & (rho <= rho_max)
+            if use.any():
+                table = coaxial_table(self.p, rho_max)
+                u = self.centers[ii[use]] - self.centers[jj[use]]
+                u /= np.linalg.norm(u, axis=1)[:, None]
+                E[use] = rotate_blocks(table.blocks(rho[use]), wigner_directions(u, self.p),
+                                       degree_slices(self.p), left_matrix=self._output_map)
+        self.n_table_blocks = int(use.sum())
+        rest = np.nonzero(~use)[0]
+        if rest.size:
+            E[rest] = self._direct_blocks([blocked[k] for k in rest])
+        return E
+
+    @property
+    def _output_map(self) -> np.ndarray:
+        """``A B``: what the native analysis keeps of degree <= p coefficients (the
+        identity but for the pair of degree-p, order-p sine columns the native grid does
+        not tell apart), applied to the rotated table blocks so that they are stated in
+        the same coefficients as the direct build's."""
+        return self.basis.A @ self.basis.B
+
+    def _direct_blocks(self, blocked: list[tuple[int, int]]) -> np.ndarray:
+        """The blocks of the ``blocked`` pairs built directly: one exact-expansion
+        response per pair, on the finer grid projected onto degree p in the projected
+        zone, at the native nodes otherwise (fine-grid quadrature pairs and node
+        sampling)."""
+        p = self.p
+        b = self.basis
+        nv = b.B.shape[1]
+        flat = np.argmax(np.abs(b.to_complex), axis=0)
+        cfac = b.to_complex[flat, np.arange(nv)]
         fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
         to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
@@ -306,24 +398,7 @@ class PairPlan:
                 Ep = np.empty((len(part), 3 * Nq, nv))
                 real_block_columns(resp.reshape(len(part) * Nq, -1, 3), flat, cfac, Ep)
                 E[part] = np.matmul(to_coef[proj], Ep)
-        self.blocks = E
-        self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
-        self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
-        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
-        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
-        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
-        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
-        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
-        for i, j in rest:
-            if self.level_of[i, j] == -2:
-                zone = self.near_proj is None or self._projected(i, j)
-                (lists if zone else node_lists)[i].append(j)
-        self.blocked = np.zeros((M, M), dtype=bool)
-        for i, j in blocked:
-            self.blocked[i, j] = True
-        self.fly_ptr, self.fly_idx = csr(lists)
-        self.flyn_ptr, self.flyn_idx = csr(node_lists)
-        self.n_block_pairs = len(blocked)
+        return E
 
     def _projected(self, i: int, j: int) -> bool:
         """Whether pair (i, j) gets the projected near field (the zone ``rho < 2``)."""

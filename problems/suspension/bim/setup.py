@@ -65,6 +65,9 @@ class BimSetup:
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
         Memory budget (MB) of the stored near-field blocks.
+    pair_blocks : {"table", "direct"}
+        How the stored blocks are built: equal-radius pairs from the coaxial table and
+        rotations (:mod:`.coaxial`), or every block directly (the reference).
 
     Raises
     ------
@@ -74,7 +77,7 @@ class BimSetup:
 
     def __init__(self, centers, radii, *, p: int, mu: float, quad_tol: float,
                  far: str = "direct", near_upsample: float = NEAR_UPSAMPLE,
-                 near_block_mb: float = 4096.0) -> None:
+                 near_block_mb: float = 4096.0, pair_blocks: str = "table") -> None:
         c, r = check_configuration(centers, radii)
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
@@ -103,7 +106,8 @@ class BimSetup:
         near_grid = sphere_grid(q_near)
         near_proj = None if q_near == self.p else projection_matrix(self.p, q_near)
         self.plan = PairPlan(c, r, Grids(self.p, self.grid, near_grid, near_proj, self.basis),
-                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb)
+                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb,
+                             pair_blocks=pair_blocks)
 
     def _one_sphere(self) -> None:
         """The grid, the one-sphere operators and the target points of every sphere."""
