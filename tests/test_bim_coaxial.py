@@ -15,7 +15,11 @@ from lcpbench.problems.suspension.bim.coaxial import (
     order_mask,
 )
 from lcpbench.problems.suspension.bim.kernels import real_block_columns, traction_response
-from lcpbench.problems.suspension.bim.rotation import degree_slices, rotate_blocks, wigner_directions
+from lcpbench.problems.suspension.bim.rotation import (
+    degree_slices,
+    rotate_blocks,
+    wigner_directions,
+)
 from lcpbench.problems.suspension.bim.setup import BimSetup
 from lcpbench.problems.suspension.bim.sphere_vsh import (
     expansion_factors,

@@ -6,12 +6,14 @@ source grid at each accuracy rung of relaxed GMRES, which get exact-expansion bl
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
 
-The stored near-field blocks are built directly here (:meth:`PairPlan._build_blocks`, one
-exact-expansion response per pair).  This is the one place where precomputed rotation
-tables would enter: a block of a pair at scaled distance ``rho`` along a direction is the
-block of a tabulated pair at ``rho`` along the z axis rotated into that direction, so a
-table lookup and a rotation of the coefficients would replace the direct build, and
-nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`, :mod:`.adjoint`) changes.
+The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`): with
+``pair_blocks="table"`` (the default) a block of two spheres of equal radius is the
+coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into the
+pair's direction (:mod:`.rotation`); pairs of unequal radii (the radius ratio would be a
+second table axis), pairs beyond the table's range and p = 1 fall back to the direct build
+(one exact-expansion response per pair), which ``pair_blocks="direct"`` uses for every
+pair as the reference.  Nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`,
+:mod:`.adjoint`) depends on how they were built.
 """
 
 from __future__ import annotations
@@ -281,7 +283,11 @@ class PairPlan:
         (:mod:`.rotation`); pairs of unequal radii (the radius ratio would be a second
         table axis), beyond the table's range or at p = 1 are built directly
         (:meth:`_direct_blocks`, the reference, also used for every pair with
-        ``pair_blocks="direct"``)."""
+        ``pair_blocks="direct"``).  The table's block is the exact projection of the
+        traction onto degree p, the same for every orientation; the direct build
+        approximates it on grids fixed in the lab frame (order 2p in the projected zone,
+        the native nodes beyond), so the two differ by the direct build's own
+        orientation-dependent error (docs/mobility.md, "Coaxial pair table")."""
         M = self.M
         nv = self.basis.B.shape[1]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer

@@ -195,7 +195,7 @@ def rotate_blocks(E: np.ndarray, Dn: list[np.ndarray], slices: list[np.ndarray],
     K, nv, _ = E.shape
     out = np.empty_like(E, dtype=float)
     ranges = []
-    for n, rows in enumerate(slices):
+    for rows in slices:
         lo, k = int(rows[0, 0]), rows.shape[0]
         if not np.array_equal(rows.reshape(-1), np.arange(lo, lo + rows.size)):
             raise ValueError("the basis is not degree-major; rotations need it")
