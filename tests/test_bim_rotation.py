@@ -83,3 +83,17 @@ def test_directions_and_batched_rotation_of_blocks():
 def test_rotation_refuses_a_reflection():
     with pytest.raises(ValueError, match="rotation"):
         vsh_rotation(np.diag([1.0, 1.0, -1.0]), 3)
+
+
+def test_rotation_of_masked_blocks_equals_the_dense_rotation():
+    p = 3
+    rng = np.random.default_rng(4)
+    order = vsh_basis(p).order
+    mask = order[:, None] == order[None, :]
+    E = np.where(mask, rng.standard_normal((2,) + mask.shape), 0.0)
+    u = rng.standard_normal((2, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    Dn = wigner_directions(u, p)
+    dense = rotate_blocks(E, Dn, degree_slices(p))
+    masked = rotate_blocks(E[:, mask], Dn, degree_slices(p), pattern=mask)
+    assert np.abs(dense - masked).max() < 1e-14 * np.abs(dense).max()

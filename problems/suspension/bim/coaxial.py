@@ -197,21 +197,28 @@ class CoaxialTable:
         rho = np.asarray(rho, dtype=float)
         return (rho >= self.edges[0]) & (rho <= self.edges[-1])
 
-    def blocks(self, rho: np.ndarray) -> np.ndarray:
-        """Interpolated coaxial blocks ``(len(rho), nv, nv)`` (``rho`` in the range)."""
+    def values(self, rho: np.ndarray) -> np.ndarray:
+        """Interpolated equal-order entries ``(len(rho), nnz)`` of the coaxial blocks, in
+        the row-major order of ``order_mask(p)`` (``rho`` in the range)."""
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
         if not self.covers(rho).all():
             raise ValueError(f"rho outside the table's range [{self.edges[0]}, {self.rho_max}]")
         k = np.clip(np.searchsorted(self.edges, rho, side="right") - 1, 0, self.edges.size - 2)
-        mask = order_mask(self.p)
-        out = np.zeros((rho.size,) + mask.shape)
-        flat, nz = out.reshape(rho.size, -1), np.flatnonzero(mask)
+        out = np.empty((rho.size, self.coefs.shape[2]))
         for panel in np.unique(k):                       # one product per panel
             sel = np.nonzero(k == panel)[0]
             a, b = self.edges[panel], self.edges[panel + 1]
             T = np.polynomial.chebyshev.chebvander((2 * rho[sel] - a - b) / (b - a),
                                                    self.coefs.shape[1] - 1)
-            flat[np.ix_(sel, nz)] = T @ self.coefs[panel]
+            out[sel] = T @ self.coefs[panel]
+        return out
+
+    def blocks(self, rho: np.ndarray) -> np.ndarray:
+        """Interpolated coaxial blocks ``(len(rho), nv, nv)`` (``rho`` in the range)."""
+        vals = self.values(rho)
+        mask = order_mask(self.p)
+        out = np.zeros((vals.shape[0],) + mask.shape)
+        out[:, mask] = vals
         return out
 
 

@@ -6,13 +6,13 @@ source grid at each accuracy rung of relaxed GMRES, which get exact-expansion bl
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
 
-The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`): with
-``pair_blocks="table"`` (the default) a block of two spheres of equal radius is the
-coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into the
-pair's direction (:mod:`.rotation`); pairs of unequal radii (the radius ratio would be a
-second table axis), pairs beyond the table's range and p = 1 fall back to the direct build
-(one exact-expansion response per pair), which ``pair_blocks="direct"`` uses for every
-pair as the reference.  Nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`,
+The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`): directly
+(``pair_blocks="direct"``, the default: one exact-expansion response per pair), or with
+``pair_blocks="table"`` the block of a projected-zone pair of two spheres of equal radius
+is the coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into
+the pair's direction (:mod:`.rotation`); node-sampled pairs (orientation-dependent by
+construction), pairs of unequal radii (the radius ratio would be a second table axis),
+pairs beyond the table's range and p = 1 are built directly there too.  Nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`,
 :mod:`.adjoint`) depends on how they were built.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
-from .coaxial import RHO_MIN, coaxial_table, table_range
+from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
 from .kernels import real_block_columns, traction_response
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
@@ -47,9 +47,9 @@ discretisation does not change with ``eps_gmres``; beyond, values at the nodes
 (quadrature, or expansions at tight tolerances).  The measured choice of the radius:
 docs/mobility.md, "Measured choices behind the defaults"."""
 
-PAIR_BLOCKS = ("table", "direct")
-"""How the stored blocks are built: from the coaxial table and rotations where it applies,
-or all directly (the reference)."""
+PAIR_BLOCKS = ("direct", "table")
+"""How the stored blocks are built: all directly (the reference and the default), or from
+the coaxial table and rotations where it applies."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -137,7 +137,7 @@ class PairPlan:
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
                  quad_tol: float, far: str, near_block_mb: float,
-                 pair_blocks: str = "table") -> None:
+                 pair_blocks: str = "direct") -> None:
         if pair_blocks not in PAIR_BLOCKS:
             raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'table' (coaxial table and "
                              "rotations) or 'direct' (every block built directly)")
@@ -278,16 +278,17 @@ class PairPlan:
         the complement of a block's output never reaches a velocity (``tests/test_bim.py``
         checks it; docs/mobility.md has what it saves).
 
-        With ``pair_blocks="table"`` the blocks of equal-radius pairs come from the
-        coaxial table (:mod:`.coaxial`) rotated into the pair's direction
-        (:mod:`.rotation`); pairs of unequal radii (the radius ratio would be a second
-        table axis), beyond the table's range or at p = 1 are built directly
-        (:meth:`_direct_blocks`, the reference, also used for every pair with
-        ``pair_blocks="direct"``).  The table's block is the exact projection of the
-        traction onto degree p, the same for every orientation; the direct build
-        approximates it on grids fixed in the lab frame (order 2p in the projected zone,
-        the native nodes beyond), so the two differ by the direct build's own
-        orientation-dependent error (docs/mobility.md, "Coaxial pair table")."""
+        With ``pair_blocks="table"`` the blocks of projected-zone pairs of equal radii come
+        from the coaxial table (:mod:`.coaxial`) rotated into the pair's direction
+        (:mod:`.rotation`): the exact projection of the traction onto degree p, the same
+        for every orientation, which the direct build approximates on the order-2p grid
+        fixed in the lab frame (they differ by that build's orientation-dependent error,
+        docs/mobility.md, "Coaxial pair table"; so do table blocks and the on-the-fly
+        projection of pairs the budget leaves unblocked).  Node-sampled pairs (sampling at
+        the native nodes is orientation-dependent by construction), pairs of unequal radii
+        (the radius ratio would be a second table axis), pairs beyond the table's range
+        and p = 1 are built directly (:meth:`_direct_blocks`, the reference, used for every
+        pair with ``pair_blocks="direct"``, the default)."""
         M = self.M
         nv = self.basis.B.shape[1]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
@@ -339,23 +340,32 @@ class PairPlan:
         """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
         coaxial table where it applies (``pair_blocks="table"``), else built directly."""
         nv = self.basis.B.shape[1]
-        E = np.empty((len(blocked), nv, nv))
         ii = np.array([i for i, _ in blocked], dtype=np.int64)
         jj = np.array([j for _, j in blocked], dtype=np.int64)
         use = np.zeros(len(blocked), dtype=bool)
+        E = None
         if self.pair_blocks == "table" and self.p >= 2 and len(blocked):
             rho = self._rho(ii, jj)
             same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
             rho_max = table_range(self.p)
-            use = same & (rho >= RHO_MIN) & (rho <= rho_max)
+            zone = np.array([self._projected(i, j) for i, j in blocked], dtype=bool)
+            use = zone & same & (rho >= RHO_MIN) & (rho <= rho_max)
             if use.any():
                 table = coaxial_table(self.p, rho_max)
                 u = self.centers[ii[use]] - self.centers[jj[use]]
                 u /= np.linalg.norm(u, axis=1)[:, None]
-                E[use] = rotate_blocks(table.blocks(rho[use]), wigner_directions(u, self.p),
-                                       degree_slices(self.p), left_matrix=self._output_map)
+                rotated = rotate_blocks(table.values(rho[use]), wigner_directions(u, self.p),
+                                        degree_slices(self.p), left_matrix=self._output_map,
+                                        pattern=order_mask(self.p))
+                if use.all():
+                    E = rotated
+                else:
+                    E = np.empty((len(blocked), nv, nv))
+                    E[use] = rotated
         self.n_table_blocks = int(use.sum())
         rest = np.nonzero(~use)[0]
+        if E is None:                                      # every block built directly
+            return self._direct_blocks(blocked)
         if rest.size:
             E[rest] = self._direct_blocks([blocked[k] for k in rest])
         return E

@@ -22,6 +22,7 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
+from numba import njit, prange
 
 from .harmonics import vsh_at
 from .sphere_vsh import knm_table, sphere_grid, vsh_basis
@@ -183,33 +184,88 @@ def vsh_rotation(Q: np.ndarray, p: int) -> np.ndarray:
 
 
 def rotate_blocks(E: np.ndarray, Dn: list[np.ndarray], slices: list[np.ndarray], *,
-                  left_matrix: np.ndarray | None = None) -> np.ndarray:
-    """``L D E D^T`` for stacks of blocks ``E`` (K, nv, nv) and rotations given per degree
-    (``Dn[n]`` of shape (K, 2n+1, 2n+1), ``slices`` from :func:`degree_slices`), using the
-    block-diagonal structure of ``D``; ``L`` is ``left_matrix`` (identity when None; only
-    its rows that differ from the identity are applied).
+                  left_matrix: np.ndarray | None = None,
+                  pattern: np.ndarray | None = None) -> np.ndarray:
+    """``L D E D^T`` for stacks of blocks ``E`` and rotations given per degree (``Dn[n]`` of
+    shape (K, 2n+1, 2n+1), ``slices`` from :func:`degree_slices`), using the block-diagonal
+    structure of ``D``; ``L`` is ``left_matrix`` (identity when None; only its rows that
+    differ from the identity are applied).
 
-    The basis is degree-major (per degree the kinds, per kind the orders), so the columns
-    of each degree are one contiguous range and every step is a batched product on views.
+    ``E`` is (K, nv, nv), or with ``pattern`` (an (nv, nv) bool mask) the (K, nnz) values
+    of the masked entries in row-major order (the coaxial table's equal-order entries),
+    never expanded.  The basis is degree-major (per degree the kinds, per kind the orders),
+    so the columns of each (kind, degree) are one contiguous range; the products run in
+    compiled code, in parallel over the blocks.
     """
-    K, nv, _ = E.shape
-    out = np.empty_like(E, dtype=float)
-    ranges = []
-    for rows in slices:
-        lo, k = int(rows[0, 0]), rows.shape[0]
-        if not np.array_equal(rows.reshape(-1), np.arange(lo, lo + rows.size)):
+    p = len(slices) - 1
+    lo = np.empty(p + 1, dtype=np.int64)
+    kinds = np.empty(p + 1, dtype=np.int64)
+    for n, rows in enumerate(slices):
+        lo[n], kinds[n] = int(rows[0, 0]), rows.shape[0]
+        if not np.array_equal(rows.reshape(-1), np.arange(lo[n], lo[n] + rows.size)):
             raise ValueError("the basis is not degree-major; rotations need it")
-        ranges.append((lo, lo + rows.size, k))
-    for n, (lo, hi, k) in enumerate(ranges):     # left: rows of degree n
-        np.matmul(Dn[n][:, None], E[:, lo:hi, :].reshape(K, k, 2 * n + 1, nv),
-                  out=out[:, lo:hi, :].reshape(K, k, 2 * n + 1, nv))
-    res = np.empty_like(out)
-    for n, (lo, hi, k) in enumerate(ranges):     # right: columns of degree n, by D^T
-        res[:, :, lo:hi] = np.matmul(out[:, :, lo:hi].reshape(K, nv, k, 2 * n + 1),
-                                     np.swapaxes(Dn[n], 1, 2)[:, None]).reshape(K, nv, -1)
-    if left_matrix is not None:
+    nv = int(lo[-1] + kinds[-1] * (2 * p + 1))
+    K = E.shape[0]
+    if pattern is None:
+        pattern = np.ones((nv, nv), dtype=bool)
+        vals = np.ascontiguousarray(E.reshape(K, -1), dtype=float)
+    else:
+        vals = np.ascontiguousarray(E, dtype=float)
+    ptr = np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64)
+    idx = np.nonzero(pattern)[1].astype(np.int64)
+    D = np.zeros((K, p + 1, 2 * p + 1, 2 * p + 1))
+    for n in range(p + 1):
+        D[:, n, :2 * n + 1, :2 * n + 1] = Dn[n]
+    if left_matrix is None:
+        dev = np.zeros(0, dtype=np.int64)
+        L = np.zeros((0, nv))
+    else:
         dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
+        L = np.ascontiguousarray(left_matrix[dev])
+    out = np.empty((K, nv, nv))
+    _rotate(vals, ptr, idx, D, lo, kinds, dev.astype(np.int64), L, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _rotate(vals: np.ndarray, ptr: np.ndarray, idx: np.ndarray, D: np.ndarray,
+            lo: np.ndarray, kinds: np.ndarray, dev: np.ndarray, L: np.ndarray,
+            out: np.ndarray) -> None:
+    """``out[k] = L D_k E_k D_k^T`` with ``E_k`` given by its values ``vals[k]`` on the
+    rows ``ptr`` / columns ``idx`` pattern (see :func:`rotate_blocks`)."""
+    K, nv, _ = out.shape
+    for k in prange(K):
+        tmp = np.zeros((nv, nv))
+        ek = vals[k]
+        for n in range(lo.size):                          # left: D E
+            w = 2 * n + 1
+            for t in range(kinds[n]):
+                base = lo[n] + t * w
+                for a in range(w):
+                    for b in range(w):
+                        d = D[k, n, a, b]
+                        row = base + b
+                        for j in range(ptr[row], ptr[row + 1]):
+                            tmp[base + a, idx[j]] += d * ek[j]
+        res = out[k]
+        for r in range(nv):                               # right: (D E) D^T
+            for n in range(lo.size):
+                w = 2 * n + 1
+                for t in range(kinds[n]):
+                    base = lo[n] + t * w
+                    for a in range(w):
+                        acc = 0.0
+                        for b in range(w):
+                            acc += tmp[r, base + b] * D[k, n, a, b]
+                        res[r, base + a] = acc
         if dev.size:
-            res[:, dev, :] = np.tensordot(left_matrix[dev], res, axes=([1], [1])
-                                          ).transpose(1, 0, 2)
-    return res
+            rows = np.zeros((dev.size, nv))
+            for i in range(dev.size):
+                for j in range(nv):
+                    x = L[i, j]
+                    if x != 0.0:
+                        for c in range(nv):
+                            rows[i, c] += x * res[j, c]
+            for i in range(dev.size):
+                for c in range(nv):
+                    res[dev[i], c] = rows[i, c]

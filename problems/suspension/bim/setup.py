@@ -65,9 +65,10 @@ class BimSetup:
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
         Memory budget (MB) of the stored near-field blocks.
-    pair_blocks : {"table", "direct"}
-        How the stored blocks are built: equal-radius pairs from the coaxial table and
-        rotations (:mod:`.coaxial`), or every block directly (the reference).
+    pair_blocks : {"direct", "table"}
+        How the stored blocks are built: every block directly (the reference, default), or
+        projected-zone pairs of equal radii from the coaxial table and rotations
+        (:mod:`.coaxial`; see :meth:`.pairs.PairPlan._build_blocks`).
 
     Raises
     ------
@@ -77,7 +78,7 @@ class BimSetup:
 
     def __init__(self, centers, radii, *, p: int, mu: float, quad_tol: float,
                  far: str = "direct", near_upsample: float = NEAR_UPSAMPLE,
-                 near_block_mb: float = 4096.0, pair_blocks: str = "table") -> None:
+                 near_block_mb: float = 4096.0, pair_blocks: str = "direct") -> None:
         c, r = check_configuration(centers, radii)
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
