@@ -306,7 +306,7 @@ class PairPlan:
         if rest:
             warnings.warn(f"near_block_mb = {self.near_block_mb:g} leaves {len(rest)} of "
                           f"{len(pairs)} near pairs without a stored block (they would need "
-                          f"{len(rest) * per_block:.0f} MB more); they are evaluated on the fly "
+                          f"{len(rest) * per_block:.3g} MB more); they are evaluated on the fly "
                           "at every product: raise near_block_mb to store them",
                           RuntimeWarning, stacklevel=4)
         blocked.sort()                                     # grouped by target sphere
