@@ -109,8 +109,24 @@ def test_setup_takes_equal_pairs_from_the_table_and_others_directly():
     assert (num <= 1e-10 * np.linalg.norm(fine.blocks[sel], axis=(1, 2))).all()
 
 
+def test_table_all_takes_node_sampled_pairs_from_the_table():
+    """With "table-all" a node-sampled pair's block is the exact projection too."""
+    p = 3
+    c = _packed()
+    plan = BimSetup(c, 1.0, p=p, mu=1.0, quad_tol=1e-10, pair_blocks="table-all").plan
+    assert plan.n_table_blocks == plan.n_block_pairs
+    node = [k for k, (i, j) in enumerate(zip(plan.block_tgt, plan.block_src))
+            if not plan._projected(i, j)]
+    assert node
+    b = vsh_basis(p)
+    for k in node[:3]:
+        i, j = plan.block_tgt[k], plan.block_src[k]
+        want = b.A @ b.B @ _projected_block(c[i], c[j], 1.0, p, 40)
+        assert np.linalg.norm(plan.blocks[k] - want) <= 1e-10 * np.linalg.norm(want)
+
+
 def test_bad_pair_blocks_value():
-    with pytest.raises(ValueError, match="pair_blocks = 'rotated'.*'table'.*'direct'"):
+    with pytest.raises(ValueError, match="pair_blocks = 'rotated'.*'direct'.*'table'.*'table-all'"):
         BimSetup(_packed(), 1.0, p=3, mu=1.0, quad_tol=1e-8, pair_blocks="rotated")
 
 

@@ -47,9 +47,10 @@ discretisation does not change with ``eps_gmres``; beyond, values at the nodes
 (quadrature, or expansions at tight tolerances).  The measured choice of the radius:
 docs/mobility.md, "Measured choices behind the defaults"."""
 
-PAIR_BLOCKS = ("direct", "table")
-"""How the stored blocks are built: all directly (the reference and the default), or from
-the coaxial table and rotations where it applies."""
+PAIR_BLOCKS = ("direct", "table", "table-all")
+"""How the stored blocks are built: all directly (the reference and the default), from the
+coaxial table and rotations for the projected zone, or from the table for node-sampled
+pairs too (their node sampling replaced by the exact projection)."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -106,7 +107,7 @@ class PairPlan:
         Far-field engine (the FMM works on the native grid and is not relaxed).
     near_block_mb : float
         Memory budget of the stored blocks.
-    pair_blocks : {"table", "direct"}
+    pair_blocks : {"direct", "table", "table-all"}
         How the stored blocks are built (see :meth:`_build_blocks`).
 
     Attributes
@@ -139,8 +140,10 @@ class PairPlan:
                  quad_tol: float, far: str, near_block_mb: float,
                  pair_blocks: str = "direct") -> None:
         if pair_blocks not in PAIR_BLOCKS:
-            raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'table' (coaxial table and "
-                             "rotations) or 'direct' (every block built directly)")
+            raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'direct' (every block built "
+                             "directly), 'table' (coaxial table and rotations for the "
+                             "projected zone) or 'table-all' (the table for node-sampled "
+                             "pairs too)")
         self.pair_blocks = pair_blocks
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
         self.quad_tol, self.far = quad_tol, far
@@ -288,7 +291,10 @@ class PairPlan:
         the native nodes is orientation-dependent by construction), pairs of unequal radii
         (the radius ratio would be a second table axis), pairs beyond the table's range
         and p = 1 are built directly (:meth:`_direct_blocks`, the reference, used for every
-        pair with ``pair_blocks="direct"``, the default)."""
+        pair with ``pair_blocks="direct"``, the default).  ``pair_blocks="table-all"``
+        takes the equal-radius node-sampled pairs from the table too: their node
+        sampling is replaced by the exact projection (a different discretisation of
+        those pairs, by the sampling's aliasing error; docs/mobility.md)."""
         M = self.M
         nv = self.basis.B.shape[1]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
@@ -338,17 +344,19 @@ class PairPlan:
 
     def _block_values(self, blocked: list[tuple[int, int]]) -> np.ndarray:
         """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
-        coaxial table where it applies (``pair_blocks="table"``), else built directly."""
+        coaxial table where it applies (``pair_blocks`` "table" or "table-all"), else
+        built directly."""
         nv = self.basis.B.shape[1]
         ii = np.array([i for i, _ in blocked], dtype=np.int64)
         jj = np.array([j for _, j in blocked], dtype=np.int64)
         use = np.zeros(len(blocked), dtype=bool)
         E = None
-        if self.pair_blocks == "table" and self.p >= 2 and len(blocked):
+        if self.pair_blocks != "direct" and self.p >= 2 and len(blocked):
             rho = self._rho(ii, jj)
             same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
             rho_max = table_range(self.p)
-            zone = np.array([self._projected(i, j) for i, j in blocked], dtype=bool)
+            zone = (np.ones(len(blocked), dtype=bool) if self.pair_blocks == "table-all"
+                    else np.array([self._projected(i, j) for i, j in blocked], dtype=bool))
             use = zone & same & (rho >= RHO_MIN) & (rho <= rho_max)
             if use.any():
                 table = coaxial_table(self.p, rho_max)

@@ -65,10 +65,11 @@ class BimSetup:
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
         Memory budget (MB) of the stored near-field blocks.
-    pair_blocks : {"direct", "table"}
-        How the stored blocks are built: every block directly (the reference, default), or
+    pair_blocks : {"direct", "table", "table-all"}
+        How the stored blocks are built: every block directly (the reference, default),
         projected-zone pairs of equal radii from the coaxial table and rotations
-        (:mod:`.coaxial`; see :meth:`.pairs.PairPlan._build_blocks`).
+        (:mod:`.coaxial`), or node-sampled pairs too ("table-all"; see
+        :meth:`.pairs.PairPlan._build_blocks`).
 
     Raises
     ------
