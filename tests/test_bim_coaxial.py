@@ -160,7 +160,8 @@ def test_table_cache_is_read_back_and_a_bad_file_rebuilt(tmp_path, monkeypatch):
     assert np.array_equal(again.coefs, first.coefs)
     monkeypatch.undo()
 
-    for bad in (b"not an npz file",
+    good = files[0].read_bytes()
+    for bad in (b"not an npz file", good[:len(good) // 2],      # garbage, truncated
                 None):                                           # a file of the wrong shape
         monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
         monkeypatch.setattr(coaxial, "_MEMORY", {})

@@ -32,6 +32,7 @@ import os
 import tempfile
 import time
 import warnings
+import zipfile
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -269,7 +270,7 @@ def _read(path: Path, key: dict) -> CoaxialTable | None:
         with np.load(path, allow_pickle=False) as f:
             stored = json.loads(str(f["key"]))
             edges, coefs = np.array(f["edges"], dtype=float), np.array(f["coefs"], dtype=float)
-    except (OSError, ValueError, KeyError, json.JSONDecodeError, EOFError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
     p = key["p"]
     want = (key["panels"], key["cheb_nodes"], int(order_mask(p).sum()))
