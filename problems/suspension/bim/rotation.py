@@ -223,17 +223,18 @@ def rotate_blocks(E: np.ndarray, Dn: list[np.ndarray], slices: list[np.ndarray],
         dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
         L = np.ascontiguousarray(left_matrix[dev])
     out = np.empty((K, nv, nv))
-    _rotate(vals, ptr, idx, D, lo, kinds, dev.astype(np.int64), L, out)
+    _rotate(vals, ptr, idx, D, np.stack([lo, kinds], axis=1), dev.astype(np.int64), L, out)
     return out
 
 
 @njit(parallel=True, cache=True)
 def _rotate(vals: np.ndarray, ptr: np.ndarray, idx: np.ndarray, D: np.ndarray,
-            lo: np.ndarray, kinds: np.ndarray, dev: np.ndarray, L: np.ndarray,
-            out: np.ndarray) -> None:
+            layout: np.ndarray, dev: np.ndarray, L: np.ndarray, out: np.ndarray) -> None:
     """``out[k] = L D_k E_k D_k^T`` with ``E_k`` given by its values ``vals[k]`` on the
-    rows ``ptr`` / columns ``idx`` pattern (see :func:`rotate_blocks`)."""
+    rows ``ptr`` / columns ``idx`` pattern; ``layout[n]`` is the first column of degree n
+    and its number of kinds (see :func:`rotate_blocks`)."""
     K, nv, _ = out.shape
+    lo, kinds = layout[:, 0], layout[:, 1]
     for k in prange(K):
         tmp = np.zeros((nv, nv))
         ek = vals[k]
