@@ -134,7 +134,7 @@ def test_memory_budget_that_leaves_pairs_unblocked_warns_once():
     c = _packed()
     with pytest.warns(RuntimeWarning, match=r"leaves \d+ of \d+ near pairs.*raise near_block_mb"
                       ) as rec:
-        plan = BimSetup(c, 1.0, p=3, mu=1.0, quad_tol=1e-8, near_block_mb=0.5).plan
+        plan = BimSetup(c, 1.0, p=3, mu=1.0, quad_tol=1e-8, near_block_mb=0.1).plan
     assert len([w for w in rec if "near_block_mb" in str(w.message)]) == 1
     assert 0 < plan.n_block_pairs < plan.n_near_pairs + plan.n_block_pairs
     with warnings.catch_warnings():

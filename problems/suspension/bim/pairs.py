@@ -27,6 +27,7 @@ from lcpbench.toolkit.blas import one_blas_thread
 
 from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
 from .kernels import real_block_columns, traction_response
+from .kernels_rotated import PlanBlocks, RotatedPairs
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
@@ -138,7 +139,7 @@ class PairPlan:
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
                  quad_tol: float, far: str, near_block_mb: float,
-                 pair_blocks: str = "direct") -> None:
+                 pair_blocks: str = "table-all") -> None:
         if pair_blocks not in PAIR_BLOCKS:
             raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'direct' (every block built "
                              "directly), 'table' (coaxial table and rotations for the "
@@ -296,7 +297,6 @@ class PairPlan:
         sampling is replaced by the exact projection (a different discretisation of
         those pairs, by the sampling's aliasing error; docs/mobility.md)."""
         M = self.M
-        nv = self.basis.B.shape[1]
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
         # than p (a stored block is then much cheaper per product than the sum; measured in
         # docs/mobility.md, "Blocks for fine-grid pairs")
@@ -306,16 +306,18 @@ class PairPlan:
         pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
             pairs = [pairs[k] for k in np.argsort(self._rho(ii, jj), kind="stable")]
-        per_block = nv * nv * 8 / 2 ** 20
-        nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
+        mb = self._block_bytes(np.array([i for i, _ in pairs], dtype=np.int64),
+                               np.array([j for _, j in pairs], dtype=np.int64)) / 2 ** 20
+        nb = int(np.searchsorted(np.cumsum(mb), self.near_block_mb * (1 + 1e-12), side="right"))
         blocked, rest = pairs[:nb], pairs[nb:]
         if rest:
             warnings.warn(f"near_block_mb = {self.near_block_mb:g} leaves {len(rest)} of "
                           f"{len(pairs)} near pairs without a stored block (they would need "
-                          f"{len(rest) * per_block:.3g} MB more); they are evaluated on the fly "
+                          f"{mb[nb:].sum():.3g} MB more); they are evaluated on the fly "
                           "at every product: raise near_block_mb to store them",
                           RuntimeWarning, stacklevel=4)
         blocked.sort()                                     # grouped by target sphere
+        self.block_bytes = int(round(mb[:nb].sum() * 2 ** 20))
         with one_blas_thread():
             self.blocks = self._block_values(blocked)
         b = self.basis
@@ -342,40 +344,60 @@ class PairPlan:
         d = np.linalg.norm(self.centers[ii] - self.centers[jj], axis=-1)
         return (d - self.radii[ii]) / self.radii[jj]
 
-    def _block_values(self, blocked: list[tuple[int, int]]) -> np.ndarray:
+    def _table_pairs(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Which pairs ``(ii, jj)`` take their block from the coaxial table (``pair_blocks``
+        "table": projected-zone pairs, "table-all": any; equal radii, in the table's range,
+        p >= 2)."""
+        if self.pair_blocks == "direct" or self.p < 2 or not ii.size:
+            return np.zeros(ii.size, dtype=bool)
+        rho = self._rho(ii, jj)
+        same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
+        zone = (np.ones(ii.size, dtype=bool) if self.pair_blocks == "table-all"
+                else np.array([self._projected(i, j) for i, j in zip(ii, jj)], dtype=bool))
+        return zone & same & (rho >= RHO_MIN) & (rho <= table_range(self.p))
+
+    def _block_bytes(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Memory of each pair's stored block: assembled (``nv x nv``), or in rotated form
+        (Wigner matrices and coaxial entries) for table pairs with ``"table-all"``."""
+        nv = self.basis.B.shape[1]
+        full = np.full(ii.size, 8.0 * nv * nv)
+        if self.pair_blocks != "table-all" or self.p < 2:
+            return full
+        nw = sum((2 * n + 1) ** 2 for n in range(self.p + 1))
+        rot = 8.0 * (nw + int(order_mask(self.p).sum()))
+        return np.where(self._table_pairs(ii, jj), rot, full)
+
+    def _block_values(self, blocked: list[tuple[int, int]]) -> np.ndarray | PlanBlocks:
         """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
         coaxial table where it applies (``pair_blocks`` "table" or "table-all"), else
-        built directly."""
+        built directly; with "table-all" the table pairs are kept in rotated form
+        (``rotated``, a :class:`.kernels_rotated.RotatedPairs`) and the stack is a
+        :class:`.kernels_rotated.PlanBlocks` that assembles them when indexed."""
         nv = self.basis.B.shape[1]
         ii = np.array([i for i, _ in blocked], dtype=np.int64)
         jj = np.array([j for _, j in blocked], dtype=np.int64)
-        use = np.zeros(len(blocked), dtype=bool)
-        E = None
-        if self.pair_blocks != "direct" and self.p >= 2 and len(blocked):
-            rho = self._rho(ii, jj)
-            same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
-            rho_max = table_range(self.p)
-            zone = (np.ones(len(blocked), dtype=bool) if self.pair_blocks == "table-all"
-                    else np.array([self._projected(i, j) for i, j in blocked], dtype=bool))
-            use = zone & same & (rho >= RHO_MIN) & (rho <= rho_max)
-            if use.any():
-                table = coaxial_table(self.p, rho_max)
-                u = self.centers[ii[use]] - self.centers[jj[use]]
-                u /= np.linalg.norm(u, axis=1)[:, None]
-                rotated = rotate_blocks(table.values(rho[use]), wigner_directions(u, self.p),
-                                        degree_slices(self.p), left_matrix=self._output_map,
-                                        pattern=order_mask(self.p))
-                if use.all():
-                    E = rotated
-                else:
-                    E = np.empty((len(blocked), nv, nv))
-                    E[use] = rotated
+        use = self._table_pairs(ii, jj)
         self.n_table_blocks = int(use.sum())
-        rest = np.nonzero(~use)[0]
-        if E is None:                                      # every block built directly
+        self.rotated = None
+        if not use.any():                                  # every block built directly
             return self._direct_blocks(blocked)
-        if rest.size:
-            E[rest] = self._direct_blocks([blocked[k] for k in rest])
+        rho_max = table_range(self.p)
+        table = coaxial_table(self.p, rho_max)
+        u = self.centers[ii[use]] - self.centers[jj[use]]
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        Dn = wigner_directions(u, self.p)
+        vals = table.values(self._rho(ii[use], jj[use]))
+        rest = np.nonzero(~use)[0]
+        direct = (self._direct_blocks([blocked[k] for k in rest]) if rest.size
+                  else np.zeros((0, nv, nv)))
+        if self.pair_blocks == "table-all":
+            self.rotated = RotatedPairs.build(Dn, vals, order_mask(self.p), self._output_map)
+            self.dense_pos, self.rot_pos = rest, np.nonzero(use)[0]
+            return PlanBlocks(direct, rest, self.rotated, self.rot_pos)
+        E = np.empty((len(blocked), nv, nv))
+        E[use] = rotate_blocks(vals, Dn, degree_slices(self.p), left_matrix=self._output_map,
+                               pattern=order_mask(self.p))
+        E[rest] = direct
         return E
 
     @property

@@ -66,10 +66,10 @@ class BimSetup:
     near_block_mb : float
         Memory budget (MB) of the stored near-field blocks.
     pair_blocks : {"direct", "table", "table-all"}
-        How the stored blocks are built: every block directly (the reference, default),
+        How the stored blocks are built: every block directly (the reference),
         projected-zone pairs of equal radii from the coaxial table and rotations
-        (:mod:`.coaxial`), or node-sampled pairs too ("table-all"; see
-        :meth:`.pairs.PairPlan._build_blocks`).
+        (:mod:`.coaxial`, assembled), or every equal-radius pair from the table, kept in
+        rotated form ("table-all", the default; see :meth:`.pairs.PairPlan._build_blocks`).
 
     Raises
     ------
@@ -79,7 +79,7 @@ class BimSetup:
 
     def __init__(self, centers, radii, *, p: int, mu: float, quad_tol: float,
                  far: str = "direct", near_upsample: float = NEAR_UPSAMPLE,
-                 near_block_mb: float = 4096.0, pair_blocks: str = "direct") -> None:
+                 near_block_mb: float = 4096.0, pair_blocks: str = "table-all") -> None:
         c, r = check_configuration(centers, radii)
         self.p = check_order(p)
         self.mu = check_viscosity(mu)

@@ -1,0 +1,289 @@
+"""Compiled (numba) products of near-field blocks kept in rotated form.
+
+A pair whose block comes from the coaxial table (:mod:`.coaxial`) is kept as its rotation
+and its coaxial entries, never as the assembled ``nv x nv`` block ``L D E D^T``
+(:meth:`.pairs.PairPlan._build_blocks`):
+
+* ``D``: the real Wigner matrices of degree 0..p of the rotation taking +z to the pair's
+  direction, flat (``sum (2n+1)^2`` numbers per pair, shared by the three kinds);
+* ``E``: the coaxial block's equal-order entries (``vals``, on the row pattern
+  ``ptr`` / ``idx``);
+* ``L``: the native analysis of degree <= p fields (the identity but for a few rows
+  ``dev``, the same for every pair).
+
+A product per pair is ``c' = D^T c_j`` (block diagonal by kind and degree), ``y = E c'``,
+``acc_i += L D y``; the transpose is ``D E^T D^T L^T``.  The kernels take the pairs'
+rotated form as one tuple ``form = (D, vals, ptr, idx, layout, dev, L)`` (``D`` (K, nw),
+``vals`` (K, nnz), ``L`` the rows ``dev`` of the output map).  ``layout[n]`` holds, per degree
+n, the first coefficient of degree n, its number of kinds and the offset of its Wigner
+matrix in a pair's ``D`` row.  The forward kernels run in parallel over target spheres
+(``tptr``: the pairs by target), the transposed one over source spheres (``sptr`` /
+``sorder``), the fused one over targets with the transposed parts per pair (summed by
+source by the caller).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from .rotation import degree_slices, rotate_blocks
+
+__all__ = ["RotatedPairs", "PlanBlocks", "rotated_forward", "rotated_forward_serial", "rotated_transpose",
+           "rotated_transpose_serial", "rotated_both", "rotated_both_serial"]
+
+
+@njit(cache=True)
+def _rotate_in(D: np.ndarray, layout: np.ndarray, c: np.ndarray, out: np.ndarray,
+               transpose: bool) -> None:
+    """``out = D c`` (or ``D^T c``) for one pair's block-diagonal rotation ``D``."""
+    for n in range(layout.shape[0]):
+        lo, kinds, off = layout[n, 0], layout[n, 1], layout[n, 2]
+        w = 2 * n + 1
+        for t in range(kinds):
+            base = lo + t * w
+            for a in range(w):
+                acc = 0.0
+                for b in range(w):
+                    if transpose:
+                        acc += D[off + b * w + a] * c[base + b]
+                    else:
+                        acc += D[off + a * w + b] * c[base + b]
+                out[base + a] = acc
+
+
+@njit(cache=True)
+def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
+                  work: np.ndarray) -> None:
+    """``acc += L D E D^T c`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
+    Ds, vs, ptr, idx, layout, dev, L = form
+    D, vals = Ds[k], vs[k]
+    nv = c.size
+    cp, y = work[0], work[1]
+    _rotate_in(D, layout, c, cp, True)
+    for r in range(nv):
+        s = 0.0
+        for j in range(ptr[r], ptr[r + 1]):
+            s += vals[j] * cp[idx[j]]
+        y[r] = s
+    z = work[2]
+    _rotate_in(D, layout, y, z, False)
+    for i in range(dev.size):                    # rows of L that differ from the identity
+        s = 0.0
+        for j in range(nv):
+            s += L[i, j] * z[j]
+        y[i] = s
+    for i in range(dev.size):
+        z[dev[i]] = y[i]
+    for r in range(nv):
+        acc[r] += z[r]
+
+
+@njit(cache=True)
+def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
+                    work: np.ndarray) -> None:
+    """``out += D E^T D^T L^T x`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
+    Ds, vs, ptr, idx, layout, dev, L = form
+    D, vals = Ds[k], vs[k]
+    nv = x.size
+    x1, x2 = work[0], work[1]
+    for r in range(nv):
+        x1[r] = x[r]
+    for i in range(dev.size):
+        x1[dev[i]] -= x[dev[i]]
+    for i in range(dev.size):
+        xi = x[dev[i]]
+        for j in range(nv):
+            x1[j] += L[i, j] * xi
+    _rotate_in(D, layout, x1, x2, True)
+    x3 = work[2]
+    x3[:] = 0.0
+    for r in range(nv):
+        xr = x2[r]
+        for j in range(ptr[r], ptr[r + 1]):
+            x3[idx[j]] += vals[j] * xr
+    _rotate_in(D, layout, x3, x1, False)
+    for r in range(nv):
+        out[r] += x1[r]
+
+
+def _forward(form, tptr, src, coef, acc):
+    """``acc[i] += sum over pairs k with target i of block_k coef[src[k]]``."""
+    M, nv = acc.shape
+    for i in prange(M):
+        work = np.empty((3, nv))
+        for k in range(tptr[i], tptr[i + 1]):
+            _pair_forward(form, k, coef[src[k]], acc[i], work)
+
+
+def _transpose(form, sptr, sorder, tgt, x, coef_bar):
+    """``coef_bar[j] += sum over pairs k with source j of block_k^T x[tgt[k]]``."""
+    M, nv = coef_bar.shape
+    for j in prange(M):
+        work = np.empty((3, nv))
+        for q in range(sptr[j], sptr[j + 1]):
+            k = sorder[q]
+            _pair_transpose(form, k, x[tgt[k]], coef_bar[j], work)
+
+
+def _both(form, tptr, src, coef, acc, x, part):
+    """:func:`_forward` into ``acc`` and, per pair k with target i, ``part[k] =
+    block_k^T x[i]`` (summed by source by the caller), in one pass over the pairs."""
+    M, nv = acc.shape
+    for i in prange(M):
+        work = np.empty((3, nv))
+        for k in range(tptr[i], tptr[i + 1]):
+            _pair_forward(form, k, coef[src[k]], acc[i], work)
+            part[k, :] = 0.0
+            _pair_transpose(form, k, x[i], part[k], work)
+
+
+rotated_forward = njit(parallel=True, cache=True)(_forward)
+rotated_forward_serial = njit(cache=True)(_forward)
+rotated_transpose = njit(parallel=True, cache=True)(_transpose)
+rotated_transpose_serial = njit(cache=True)(_transpose)
+rotated_both = njit(parallel=True, cache=True)(_both)
+rotated_both_serial = njit(cache=True)(_both)
+
+
+@dataclass(frozen=True)
+class RotatedPairs:
+    """Blocks kept in rotated form (see the module): per pair its flat Wigner matrices and
+    its coaxial entries.
+
+    Attributes
+    ----------
+    p : int
+        Order of the blocks.
+    D : ndarray, shape (K, nw)
+        Per pair the real Wigner matrices of degree 0..p, row-major, one after the other.
+    vals : ndarray, shape (K, nnz)
+        Per pair the coaxial block's entries on the pattern ``ptr`` / ``idx``.
+    ptr, idx : ndarray
+        Row pointers (nv + 1) and columns (nnz) of the equal-order pattern.
+    layout : ndarray, shape (p + 1, 3)
+        Per degree: first coefficient, number of kinds, offset of its Wigner matrix.
+    dev : ndarray
+        Rows of the output map ``L`` that differ from the identity.
+    L : ndarray, shape (len(dev), nv)
+        Those rows.
+    """
+
+    p: int
+    D: np.ndarray
+    vals: np.ndarray
+    ptr: np.ndarray
+    idx: np.ndarray
+    layout: np.ndarray
+    dev: np.ndarray
+    L: np.ndarray
+
+    @classmethod
+    def build(cls, Dn: list[np.ndarray], vals: np.ndarray, pattern: np.ndarray,
+              left_matrix: np.ndarray) -> RotatedPairs:
+        """The rotated form of the blocks ``left_matrix D E D^T``: ``Dn[n]`` (K, 2n+1,
+        2n+1) the Wigner matrices per degree, ``vals`` (K, nnz) the entries of the coaxial
+        blocks on the bool ``pattern`` (nv, nv), row-major."""
+        p = len(Dn) - 1
+        K = vals.shape[0]
+        layout = np.empty((p + 1, 3), dtype=np.int64)
+        off = 0
+        for n, rows in enumerate(degree_slices(p)):
+            layout[n] = (int(rows[0, 0]), rows.shape[0], off)
+            off += (2 * n + 1) ** 2
+        D = np.concatenate([d.reshape(K, -1) for d in Dn], axis=1) if K else np.zeros((0, off))
+        nv = pattern.shape[0]
+        dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
+        return cls(p, np.ascontiguousarray(D), np.ascontiguousarray(vals, dtype=float),
+                   np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
+                   np.nonzero(pattern)[1].astype(np.int64), layout, dev.astype(np.int64),
+                   np.ascontiguousarray(left_matrix[dev]))
+
+    @property
+    def form(self) -> tuple:
+        """The tuple the compiled kernels read."""
+        return (self.D, self.vals, self.ptr, self.idx, self.layout, self.dev, self.L)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the per-pair data (the pattern and output map are shared)."""
+        return int(self.D.nbytes + self.vals.nbytes)
+
+    @property
+    def work(self) -> int:
+        """Multiply-adds of one forward product with every pair."""
+        nv = self.ptr.size - 1
+        rot = int(sum(k * (2 * n + 1) ** 2 for n, k in enumerate(self.layout[:, 1])))
+        return int(self.vals.shape[0] * (2 * rot + self.vals.shape[1] + self.dev.size * nv))
+
+    def assemble(self, sel: np.ndarray) -> np.ndarray:
+        """The assembled blocks ``L D E D^T`` of the pairs ``sel``, ``(len(sel), nv, nv)``."""
+        sel = np.asarray(sel, dtype=np.int64)
+        nv = self.ptr.size - 1
+        Dn = []
+        for n in range(self.p + 1):
+            w, off = 2 * n + 1, self.layout[n, 2]
+            Dn.append(self.D[sel, off:off + w * w].reshape(-1, w, w))
+        pattern = np.zeros((nv, nv), dtype=bool)
+        pattern[np.repeat(np.arange(nv), np.diff(self.ptr)), self.idx] = True
+        left = np.eye(nv)
+        left[self.dev] = self.L
+        return rotate_blocks(self.vals[sel], Dn, degree_slices(self.p), left_matrix=left,
+                             pattern=pattern)
+
+
+class PlanBlocks:
+    """The pair plan's stored blocks as a read-only stack ``(K, nv, nv)`` assembled on
+    demand: blocks kept dense are returned as stored, blocks kept in rotated form
+    (:class:`RotatedPairs`) are assembled when indexed.  Indexing takes what the readers
+    of ``plan.blocks`` use: an integer, a slice or an index array, optionally followed by
+    slices of rows and columns (``blocks[idx, :n, :n]``).
+
+    Parameters
+    ----------
+    dense : ndarray, shape (Kd, nv, nv)
+        The blocks kept dense.
+    dense_pos : ndarray
+        Their positions in the stack.
+    rotated : RotatedPairs
+        The blocks kept in rotated form.
+    rot_pos : ndarray
+        Their positions in the stack.
+    """
+
+    ndim = 3
+
+    def __init__(self, dense: np.ndarray, dense_pos: np.ndarray, rotated: RotatedPairs,
+                 rot_pos: np.ndarray) -> None:
+        nv = rotated.ptr.size - 1
+        self.shape = (int(dense_pos.size + rot_pos.size), nv, nv)
+        self.dense, self.rotated = dense, rotated
+        self._where = np.empty(self.shape[0], dtype=np.int64)    # >= 0 dense, < 0 rotated
+        self._where[dense_pos] = np.arange(dense_pos.size)
+        self._where[rot_pos] = -1 - np.arange(rot_pos.size)
+
+    @property
+    def size(self) -> int:
+        """Entries of the assembled stack (the work of an assembled product)."""
+        return int(np.prod(self.shape))
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key):
+        rest: tuple = ()
+        if isinstance(key, tuple):
+            key, rest = key[0], key[1:]
+        sel = np.arange(self.shape[0])[key]
+        scalar = sel.ndim == 0
+        sel = np.atleast_1d(sel)
+        where = self._where[sel]
+        out = np.empty((sel.size,) + self.shape[1:])
+        d = where >= 0
+        out[d] = self.dense[where[d]]
+        if (~d).any():
+            out[~d] = self.rotated.assemble(-1 - where[~d])
+        out = out[0] if scalar else out
+        return out[(slice(None),) * (0 if scalar else 1) + rest] if rest else out
