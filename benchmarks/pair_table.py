@@ -10,15 +10,14 @@ the RPY mobility (cheap) until it has packed (closest gaps 0.3a), as
 benchmarks/live_operator.py does.  On that configuration, at order ``--p`` and the
 quadrature tolerance of ``eps_gmres`` 1e-8:
 
-* the block build (:meth:`PairPlan._block_values` of the plan's stored pairs), direct,
-  from the table for the projected zone (``"table"``) and for every equal-radius pair
-  (``"table-all"``), per configuration and per block, and the whole set-up
-  (:class:`BimSetup`) direct and ``"table"``;
-* the agreement of the blocks and of three mobility products (``eps_gmres`` 1e-10) built
-  on either set of blocks, and, with ``--reference-p``, of each against the direct build
-  at that higher order (the discretisation error both approximate);
-* the applied cost of the stored blocks per product, assembled (what the operator does)
-  against a rotate / coaxial / rotate-back prototype (numpy, batched per degree);
+* side by side for every size, the direct build (assembled blocks) and the default
+  rotated table (``"table-all"``: equal-radius pairs kept as Wigner matrices and coaxial
+  entries): the whole set-up (:class:`BimSetup`) and its block part
+  (:meth:`PairPlan._block_values`), the memory of the stored near field, milliseconds per
+  forward / transposed / fused near-field product (:class:`StoredBlocks`, BLAS on one
+  thread) and seconds per mobility product (``eps_gmres`` 1e-10, three right-hand sides);
+* the agreement of those mobility products, and with ``--reference-p`` of each against
+  the direct build at that higher order (the discretisation error both approximate);
 * the table's build time (from an empty cache), its range and its size on disk.
 """
 
@@ -37,7 +36,6 @@ from common import packed_lattice
 from lcpbench.problems.suspension.bim import coaxial
 from lcpbench.problems.suspension.bim.blocks import StoredBlocks
 from lcpbench.problems.suspension.bim.operator import BimMobility
-from lcpbench.problems.suspension.bim.rotation import degree_slices, wigner_directions
 from lcpbench.problems.suspension.bim.setup import BimSetup
 from lcpbench.problems.suspension.bim.sphere_vsh import default_quad_tol
 from lcpbench.toolkit.blas import one_blas_thread
@@ -62,107 +60,82 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - t
 
 
-def rotated_apply(plan, coef: np.ndarray, Dn: list, coax: np.ndarray) -> np.ndarray:
-    """Prototype of the rotated form: per block ``D (E_coax (D^T x_j))`` (K, nv), as if
-    every stored pair came from the table."""
-    x = coef[plan.block_src]                                   # (K, nv)
-    K = x.shape[0]
-    y = np.empty_like(x)
-    ranges = [(int(r[0, 0]), int(r[0, 0]) + r.size, r.shape[0]) for r in degree_slices(plan.p)]
-    for n, (lo, hi, k) in enumerate(ranges):                   # D^T x, per degree
-        y[:, lo:hi] = np.matmul(x[:, lo:hi].reshape(K, k, 2 * n + 1),
-                                Dn[n]).reshape(K, -1)
-    z = np.einsum("kab,kb->ka", coax, y)                       # coaxial block (m-sparse)
-    out = np.empty_like(z)
-    for n, (lo, hi, k) in enumerate(ranges):                   # D z
-        out[:, lo:hi] = np.matmul(z[:, lo:hi].reshape(K, k, 2 * n + 1),
-                                  np.swapaxes(Dn[n], 1, 2)).reshape(K, -1)
-    return out
-
-
-def apply_costs(setup: BimSetup, repeat: int = 5) -> tuple[float, float, float]:
-    """Seconds per product of the assembled blocks (the operator's compiled kernel) and of
-    the rotated prototype over the same pairs (numpy, summed by target), and the
-    prototype's agreement with the assembled table blocks (``L`` aside: ``B L = B``)."""
+def near_costs(setup: BimSetup, repeat: int = 5) -> dict:
+    """Milliseconds per call of the stored near field's forward, transposed and fused
+    products (the compiled kernels the operator calls, BLAS on one thread as in the
+    solves), and its memory in MB."""
     plan = setup.plan
-    rng = np.random.default_rng(1)
-    coef = rng.standard_normal((plan.M, plan.blocks.shape[1]))
     near = StoredBlocks(plan)
-    u = setup.centers[plan.block_tgt] - setup.centers[plan.block_src]
-    rho = plan._rho(plan.block_tgt, plan.block_src)
-    u /= np.linalg.norm(u, axis=1)[:, None]
-    Dn = wigner_directions(u, plan.p)
-    coax = coaxial.coaxial_table(plan.p, coaxial.table_range(plan.p)).blocks(rho)
+    rng = np.random.default_rng(1)
+    coef = rng.standard_normal((plan.M, plan.block_synth.shape[0]))
+    ob = rng.standard_normal((plan.M, 3 * plan.N))
+    bar, out = np.zeros_like(coef), np.zeros_like(ob)
+    calls = {"apply": lambda: near.apply(coef),
+             "transpose": lambda: near.add_transpose(ob, bar),
+             "both": lambda: near.apply_both(coef, ob, bar, out)}
+    res = {"MB": near.nbytes / 2 ** 20}
     with one_blas_thread():
-        near.apply(coef)
-        t0 = time.perf_counter()
-        for _ in range(repeat):
-            near.apply(coef)
-        t1 = time.perf_counter()
-        for _ in range(repeat):
-            acc = np.zeros_like(coef)
-            np.add.at(acc, plan.block_tgt, rotated_apply(plan, coef, Dn, coax))
-        t2 = time.perf_counter()
-    got = rotated_apply(plan, coef, Dn, coax) @ plan.block_synth
-    want = np.einsum("kab,kb->ka", plan.blocks, coef[plan.block_src]) @ plan.block_synth
-    zone = np.array([plan._projected(i, j) for i, j in zip(plan.block_tgt, plan.block_src)])
-    agree = (np.linalg.norm(got[zone] - want[zone]) / np.linalg.norm(want[zone])
-             if zone.any() else float("nan"))
-    return (t1 - t0) / repeat, (t2 - t1) / repeat, float(agree)
+        for name, fn in calls.items():
+            fn()                                               # compiled and warm
+            t = time.perf_counter()
+            for _ in range(repeat):
+                fn()
+            res[name] = 1e3 * (time.perf_counter() - t) / repeat
+    return res
 
 
-def one_configuration(m: int, p: int, pack: int, ref_p: int | None) -> None:
+def one_configuration(m: int, p: int, pack: int, ref_p: int | None) -> dict:
+    """Set-up and product costs, direct against the rotated table (``"table-all"``), and
+    their agreement, on the packed lattice of side m; returns the numbers."""
     scene = packed_lattice(m, pack, scene="paper-lattice")
     c, r = scene.centers, scene.radii
     kw = dict(p=p, mu=1.0, quad_tol=default_quad_tol(1e-8))
     coaxial.coaxial_table(p, coaxial.table_range(p))           # built or read before timing
-    for mode in ("direct", "table"):                           # compiled code and caches warm
-        BimSetup(c[:2], r[:2], pair_blocks=mode, **kw)
-    direct, t_sd = timed(BimSetup, c, r, pair_blocks="direct", **kw)
-    table, t_st = timed(BimSetup, c, r, pair_blocks="table", **kw)
-    plan = table.plan
-    blocked = list(zip(plan.block_tgt.tolist(), plan.block_src.tolist()))
-    zone = [(i, j) for i, j in blocked if plan._projected(i, j)]
-    with one_blas_thread():
-        _, t_d = timed(direct.plan._block_values, blocked)
-        _, t_t = timed(plan._block_values, blocked)
-        _, z_d = timed(direct.plan._block_values, zone)
-        _, z_t = timed(plan._block_values, zone)
-    nb = len(blocked)
-    rel = (np.linalg.norm(plan.blocks - direct.plan.blocks, axis=(1, 2))
-           / np.linalg.norm(direct.plan.blocks, axis=(1, 2)))
-    print(f"\nM = {m ** 3}, p = {p}: {nb} stored blocks ({plan.n_table_blocks} from the table, "
-          "the projected zone), "
-          f"{nb * plan.blocks[0].nbytes / 2 ** 20:.0f} MB")
-    print(f"  block build     direct {t_d:7.2f} s ({1e3 * t_d / nb:6.2f} ms/block)   "
-          f"table {t_t:7.2f} s ({1e3 * t_t / nb:6.2f} ms/block)   ratio {t_d / t_t:5.1f}")
-    print(f"  zone blocks     direct {z_d:7.2f} s ({1e3 * z_d / len(zone):6.2f} ms/block)   "
-          f"table {z_t:7.2f} s ({1e3 * z_t / len(zone):6.2f} ms/block)   ratio {z_d / z_t:5.1f}"
-          f"   ({len(zone)} blocks)")
-    print(f"  whole set-up    direct {t_sd:7.2f} s   table {t_st:7.2f} s")
-    print(f"  blocks table vs direct: median {np.median(rel):.1e}, max {rel.max():.1e}")
-    every = BimSetup(c, r, pair_blocks="table-all", **kw)
-    with one_blas_thread():
-        _, t_a = timed(every.plan._block_values, blocked)
-    print(f"  table-all       {t_a:7.2f} s ({1e3 * t_a / nb:6.2f} ms/block, "
-          f"{every.plan.n_table_blocks} from the table)   ratio to direct {t_d / t_a:5.1f}")
+    for mode in ("direct", "table-all"):                       # compiled code and caches warm
+        StoredBlocks(BimSetup(c[:2], r[:2], pair_blocks=mode, **kw).plan).apply(
+            np.zeros((2, 3 * (p + 1) ** 2 - 2)))
+    out: dict = {"M": m ** 3}
+    setups = {}
+    for mode in ("direct", "table-all"):
+        setups[mode], t = timed(BimSetup, c, r, pair_blocks=mode, **kw)
+        plan = setups[mode].plan
+        blocked = list(zip(plan.block_tgt.tolist(), plan.block_src.tolist()))
+        with one_blas_thread():
+            _, t_b = timed(plan._block_values, blocked)
+        out[mode] = {"setup": t, "blocks": t_b, "pairs": len(blocked),
+                     **near_costs(setups[mode])}
+        out["table pairs"] = plan.n_table_blocks
     F = np.random.default_rng(0).standard_normal((6 * len(r), 3))
-    U = {"direct": products(direct, F), "table": products(table, F),
-         "table-all": products(every, F)}
-    del every
-    for k in ("table", "table-all"):
-        d = np.linalg.norm(U[k] - U["direct"]) / np.linalg.norm(U["direct"])
-        print(f"  mobility products {k} vs direct: {d:.1e}")
+    U = {}
+    for mode, setup in setups.items():
+        U[mode], t = timed(products, setup, F)
+        out[mode]["mobility"] = t / F.shape[1]
+    out["agree"] = float(np.linalg.norm(U["table-all"] - U["direct"])
+                         / np.linalg.norm(U["direct"]))
     if ref_p:
         ref = products(BimSetup(c, r, pair_blocks="direct", **{**kw, "p": ref_p}), F)
-        for k, v in U.items():
-            print(f"  {k:>9} at p = {p} vs direct at p = {ref_p}: "
-                  f"{np.linalg.norm(v - ref) / np.linalg.norm(ref):.4e}")
-    t_a, t_r, agree = apply_costs(table)
-    print(f"  stored blocks per product: assembled {1e3 * t_a:.1f} ms, rotated prototype "
-          f"{1e3 * t_r:.1f} ms (agreement on the table's pairs {agree:.0e}); memory per pair assembled "
-          f"{plan.blocks[0].nbytes / 1024:.0f} KB, rotated "
-          f"{8 * (int(coaxial.order_mask(p).sum()) + sum((2 * n + 1) ** 2 for n in range(p + 1))) / 1024:.0f} KB")
+        out["ref"] = {k: float(np.linalg.norm(v - ref) / np.linalg.norm(ref))
+                      for k, v in U.items()}
+    return out
+
+
+def report(rows: list[dict], p: int) -> None:
+    """Prints the configurations side by side."""
+    head = "".join(f"{'M = ' + str(r['M']) + ' direct':>16}{'rotated table':>15}" for r in rows)
+    print(f"\npacked paper-lattice, p = {p}{'':8}{head}")
+    lines = [("stored pairs", "pairs", "{:.0f}"), ("set-up s", "setup", "{:.2f}"),
+             ("  blocks s", "blocks", "{:.2f}"), ("near field MB", "MB", "{:.0f}"),
+             ("apply ms", "apply", "{:.1f}"), ("transpose ms", "transpose", "{:.1f}"),
+             ("both ms", "both", "{:.1f}"), ("mobility product s", "mobility", "{:.2f}")]
+    for label, key, fmt in lines:
+        cells = "".join(f"{fmt.format(r['direct'][key]):>16}{fmt.format(r['table-all'][key]):>15}"
+                        for r in rows)
+        print(f"{label:<35}{cells}")
+    for r in rows:
+        print(f"M = {r['M']}: {r['table pairs']} of {r['table-all']['pairs']} pairs from the "
+              f"table; mobility products rotated table vs direct {r['agree']:.1e}"
+              + ("".join(f"; {k} vs p = {p} ref {v:.2e}" for k, v in r["ref"].items())
+                 if "ref" in r else ""))
 
 
 def table_cost(p: int) -> None:
@@ -196,9 +169,11 @@ def main() -> None:
         os.environ.pop("XDG_CACHE_HOME", None)
     else:
         os.environ["XDG_CACHE_HOME"] = cache
+    rows = []
     for m in args.m:
-        one_configuration(m, args.p, args.pack, args.reference_p)
+        rows.append(one_configuration(m, args.p, args.pack, args.reference_p))
         sys.stdout.flush()
+    report(rows, args.p)
 
 
 if __name__ == "__main__":

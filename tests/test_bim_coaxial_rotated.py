@@ -140,3 +140,41 @@ def test_budget_counts_blocks_in_rotated_form():
     rotated = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=mb).plan
     assert rotated.n_block_pairs > 40
     assert rotated.block_bytes <= mb * 2 ** 20
+
+
+def test_pairs_beyond_the_budget_are_the_same_table_blocks_rotated_on_the_fly():
+    """Over budget, table pairs keep their (table) blocks, rotated at every product, not
+    a different discretisation: products equal those of the full budget."""
+    c = _packed(2)
+    full = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10).plan
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        small = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=0.2).plan
+    assert 0 < small.n_stored_blocks < small.n_block_pairs == full.n_block_pairs
+    assert small.fly_idx.size == 0 and small.flyn_idx.size == 0
+    assert small.fly_pairs.rho.size == small.n_block_pairs - small.n_stored_blocks
+    assert np.array_equal(small.blocks[:, :9, :9], full.blocks[:, :9, :9])
+    rng = np.random.default_rng(2)
+    coef = rng.standard_normal((full.M, full.blocks.shape[1]))
+    ob = rng.standard_normal((full.M, 3 * full.N))
+    a, b = StoredBlocks(full), StoredBlocks(small)
+    assert _rel(b.apply(coef), a.apply(coef)) <= 1e-13
+    bar_a, bar_b = np.zeros_like(coef), np.zeros_like(coef)
+    a.add_transpose(ob, bar_a)
+    b.add_transpose(ob, bar_b)
+    assert _rel(bar_b, bar_a) <= 1e-13
+    out_b, both_b = np.zeros_like(ob), np.zeros_like(coef)
+    b.apply_both(coef, ob, both_b, out_b)
+    assert _rel(out_b, a.apply(coef)) <= 1e-13 and _rel(both_b, bar_a) <= 1e-13
+
+
+def test_mobility_with_no_block_budget_equals_the_stored_table_blocks():
+    from lcpbench.problems.suspension.bim.operator import BimMobility
+
+    c = _packed(2)
+    ft = np.random.default_rng(4).standard_normal(6 * len(c))
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0)
+    assert B.plan.n_stored_blocks == 0 and B.plan.n_block_pairs == A.plan.n_block_pairs
+    ua, ub = A @ ft, B @ ft
+    assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()

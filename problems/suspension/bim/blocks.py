@@ -26,6 +26,7 @@ from .kernels_adjoint import (
     apply_blocks_both_serial,
 )
 from .kernels_rotated import (
+    FlyPairs,
     RotatedPairs,
     rotated_both,
     rotated_both_serial,
@@ -82,6 +83,8 @@ class StoredBlocks:
         self.plan = plan
         self.rotated: RotatedPairs | None = getattr(plan, "rotated", None)
         tgt, src = plan.block_tgt, plan.block_src
+        self.fly: FlyPairs | None = getattr(plan, "fly_pairs", None)
+        self._fly = None
         if self.rotated is None:
             self._dense = _part(plan.blocks, tgt, src, plan.M)
             self._rot = None
@@ -89,12 +92,27 @@ class StoredBlocks:
             d, r = plan.dense_pos, plan.rot_pos
             self._dense = _part(plan.blocks.dense, tgt[d], src[d], plan.M)
             self._rot = _part(self.rotated.form, tgt[r], src[r], plan.M)
+            if self.fly is not None:
+                self._fly = [_part(None, tgt[plan.fly_pos[s]], src[plan.fly_pos[s]], plan.M)
+                             for s in self.fly.chunks()]
 
     @property
     def work(self) -> int:
-        """Multiply-adds of one product with the blocks."""
+        """Multiply-adds of one product with the blocks (those rotated at each product
+        counted as if stored)."""
         rot = 0 if self.rotated is None else self.rotated.work
+        if self.rotated is not None and self.rotated.vals.shape[0]:
+            per_pair = self.rotated.work / self.rotated.vals.shape[0]
+            rot += int(per_pair * (0 if self.fly is None else self.fly.rho.size))
         return int(self._dense.blocks.size) + rot
+
+    def _fly_parts(self):
+        """Per chunk of the pairs rotated at each product: their record with their rotated
+        form in place of blocks."""
+        if self._fly is None:
+            return []
+        return [part._replace(blocks=self.fly.rotated(s).form)
+                for s, part in zip(self.fly.chunks(), self._fly)]
 
     @property
     def nbytes(self) -> int:
@@ -109,10 +127,10 @@ class StoredBlocks:
         if d.src.size:
             fn = apply_blocks if d.blocks.size > PARALLEL_WORK else apply_blocks_serial
             fn(d.blocks, d.ptr, d.src, coef, acc)
-        r = self._rot
-        if r is not None and r.src.size:
-            fn = rotated_forward if self.rotated.work > PARALLEL_WORK else rotated_forward_serial
-            fn(r.blocks, r.ptr, r.src, np.ascontiguousarray(coef), acc)
+        fn = rotated_forward if self.work > PARALLEL_WORK else rotated_forward_serial
+        for r in [self._rot] + self._fly_parts():
+            if r is not None and r.src.size:
+                fn(r.blocks, r.ptr, r.src, np.ascontiguousarray(coef), acc)
         return acc
 
     def apply(self, coef: np.ndarray) -> np.ndarray:
@@ -130,11 +148,10 @@ class StoredBlocks:
             fn = (apply_blocks_adjoint if d.blocks.size > PARALLEL_WORK
                   else apply_blocks_adjoint_serial)
             fn(d.blocks, d.sptr, d.sorder, d.tgt, x, coef_bar)
-        r = self._rot
-        if r is not None and r.src.size:
-            fn = (rotated_transpose if self.rotated.work > PARALLEL_WORK
-                  else rotated_transpose_serial)
-            fn(r.blocks, r.sptr, r.sorder, r.tgt, x, coef_bar)
+        fn = rotated_transpose if self.work > PARALLEL_WORK else rotated_transpose_serial
+        for r in [self._rot] + self._fly_parts():
+            if r is not None and r.src.size:
+                fn(r.blocks, r.sptr, r.sorder, r.tgt, x, coef_bar)
 
     def add_transpose(self, ob: np.ndarray, coef_bar: np.ndarray) -> None:
         """Adds the transposed blocks' share of adjoint tractions ``ob`` (M, 3N) to the
@@ -155,13 +172,12 @@ class StoredBlocks:
         x = np.ascontiguousarray(dense_rows(ob, plan.block_synth_T))
         coef = np.ascontiguousarray(coef)
         acc = np.zeros((plan.M, plan.block_synth.shape[0]))
-        for part, fns, work in ((self._dense, (apply_blocks_both, apply_blocks_both_serial),
-                                 self._dense.blocks.size),
-                                (self._rot, (rotated_both, rotated_both_serial),
-                                 0 if self.rotated is None else self.rotated.work)):
+        rot = (rotated_both, rotated_both_serial)
+        for part, fns in ([(self._dense, (apply_blocks_both, apply_blocks_both_serial))]
+                          + [(r, rot) for r in [self._rot] + self._fly_parts()]):
             if part is None or not part.src.size:
                 continue
-            fn = fns[0] if work > PARALLEL_WORK else fns[1]
+            fn = fns[0] if self.work > PARALLEL_WORK else fns[1]
             bar = np.empty((part.src.size, coef.shape[1]))
             fn(part.blocks, part.ptr, part.src, coef, acc, x, bar)
             coef_bar += part.by_source @ bar

@@ -29,9 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from .rotation import degree_slices, rotate_blocks
+from .coaxial import CoaxialTable, order_mask
+from .rotation import degree_slices, rotate_blocks, wigner_directions
 
-__all__ = ["RotatedPairs", "PlanBlocks", "rotated_forward", "rotated_forward_serial", "rotated_transpose",
+__all__ = ["RotatedPairs", "FlyPairs", "PlanBlocks", "rotated_forward", "rotated_forward_serial", "rotated_transpose",
            "rotated_transpose_serial", "rotated_both", "rotated_both_serial"]
 
 
@@ -234,35 +235,77 @@ class RotatedPairs:
                              pattern=pattern)
 
 
+@dataclass(frozen=True)
+class FlyPairs:
+    """Table pairs beyond the memory budget: only their directions and scaled distances
+    are kept, and their rotated form is computed at every product, a chunk of pairs at a
+    time (the same blocks as if stored: the table's, rotated).
+
+    Attributes
+    ----------
+    u : ndarray, shape (K, 3)
+        Unit vectors from source to target centre.
+    rho : ndarray, shape (K,)
+        Scaled distances.
+    table : CoaxialTable
+        The coaxial table.
+    left_matrix : ndarray, shape (nv, nv)
+        The output map ``L``.
+    """
+
+    u: np.ndarray
+    rho: np.ndarray
+    table: CoaxialTable
+    left_matrix: np.ndarray
+
+    chunk = 256
+    """Pairs whose rotated form is held at a time (about 18 MB at p = 8)."""
+
+    def rotated(self, sel) -> RotatedPairs:
+        """The rotated form of the pairs ``sel`` (an index array or a slice)."""
+        p = self.table.p
+        return RotatedPairs.build(wigner_directions(self.u[sel], p),
+                                  self.table.values(self.rho[sel]), order_mask(p),
+                                  self.left_matrix)
+
+    def chunks(self):
+        """Slices of at most :attr:`chunk` consecutive pairs covering them all."""
+        K = self.rho.size
+        return [slice(k, min(k + self.chunk, K)) for k in range(0, K, self.chunk)]
+
+
 class PlanBlocks:
-    """The pair plan's stored blocks as a read-only stack ``(K, nv, nv)`` assembled on
-    demand: blocks kept dense are returned as stored, blocks kept in rotated form
-    (:class:`RotatedPairs`) are assembled when indexed.  Indexing takes what the readers
-    of ``plan.blocks`` use: an integer, a slice or an index array, optionally followed by
-    slices of rows and columns (``blocks[idx, :n, :n]``).
+    """The pair plan's blocks as a read-only stack ``(K, nv, nv)`` assembled on demand:
+    blocks kept dense are returned as stored, blocks kept in rotated form
+    (:class:`RotatedPairs`) or computed at each product (:class:`FlyPairs`) are assembled
+    when indexed.  Indexing takes what the readers of ``plan.blocks`` use: an integer, a
+    slice or an index array, optionally followed by slices of rows and columns
+    (``blocks[idx, :n, :n]``).
 
     Parameters
     ----------
     dense : ndarray, shape (Kd, nv, nv)
         The blocks kept dense.
-    dense_pos : ndarray
-        Their positions in the stack.
     rotated : RotatedPairs
         The blocks kept in rotated form.
-    rot_pos : ndarray
-        Their positions in the stack.
+    fly : FlyPairs or None
+        The blocks computed at each product.
+    positions : tuple of ndarray
+        The positions in the stack of the dense, rotated and computed blocks.
     """
 
     ndim = 3
 
-    def __init__(self, dense: np.ndarray, dense_pos: np.ndarray, rotated: RotatedPairs,
-                 rot_pos: np.ndarray) -> None:
+    def __init__(self, dense: np.ndarray, rotated: RotatedPairs, fly: FlyPairs | None,
+                 positions: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         nv = rotated.ptr.size - 1
-        self.shape = (int(dense_pos.size + rot_pos.size), nv, nv)
-        self.dense, self.rotated = dense, rotated
-        self._where = np.empty(self.shape[0], dtype=np.int64)    # >= 0 dense, < 0 rotated
-        self._where[dense_pos] = np.arange(dense_pos.size)
-        self._where[rot_pos] = -1 - np.arange(rot_pos.size)
+        self.shape = (int(sum(x.size for x in positions)), nv, nv)
+        self.dense, self.rotated, self.fly = dense, rotated, fly
+        self._kind = np.empty(self.shape[0], dtype=np.int64)
+        self._at = np.empty(self.shape[0], dtype=np.int64)
+        for kind, pos in enumerate(positions):
+            self._kind[pos] = kind
+            self._at[pos] = np.arange(pos.size)
 
     @property
     def size(self) -> int:
@@ -279,11 +322,13 @@ class PlanBlocks:
         sel = np.arange(self.shape[0])[key]
         scalar = sel.ndim == 0
         sel = np.atleast_1d(sel)
-        where = self._where[sel]
+        kind, at = self._kind[sel], self._at[sel]
         out = np.empty((sel.size,) + self.shape[1:])
-        d = where >= 0
-        out[d] = self.dense[where[d]]
-        if (~d).any():
-            out[~d] = self.rotated.assemble(-1 - where[~d])
+        for k, assemble in enumerate((lambda i: self.dense[i],
+                                      lambda i: self.rotated.assemble(i),
+                                      lambda i: self.fly.rotated(i).assemble(np.arange(i.size)))):
+            mine = kind == k
+            if mine.any():
+                out[mine] = assemble(at[mine])
         out = out[0] if scalar else out
         return out[(slice(None),) * (0 if scalar else 1) + rest] if rest else out

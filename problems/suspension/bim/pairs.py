@@ -27,7 +27,7 @@ from lcpbench.toolkit.blas import one_blas_thread
 
 from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
 from .kernels import real_block_columns, traction_response
-from .kernels_rotated import PlanBlocks, RotatedPairs
+from .kernels_rotated import FlyPairs, PlanBlocks, RotatedPairs
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
@@ -316,10 +316,18 @@ class PairPlan:
                           f"{mb[nb:].sum():.3g} MB more); they are evaluated on the fly "
                           "at every product: raise near_block_mb to store them",
                           RuntimeWarning, stacklevel=4)
-        blocked.sort()                                     # grouped by target sphere
+        fly: list[tuple[int, int]] = []
+        if self.pair_blocks == "table-all" and rest:      # table pairs: rotated on the fly
+            ri = np.array([i for i, _ in rest], dtype=np.int64)
+            rj = np.array([j for _, j in rest], dtype=np.int64)
+            ok = self._table_pairs(ri, rj) & (self.level_of[ri, rj] == -2)
+            fly = [rest[k] for k in np.nonzero(ok)[0]]
+            rest = [rest[k] for k in np.nonzero(~ok)[0]]
+        stored = len(blocked)
+        blocked = sorted(blocked + fly)                    # grouped by target sphere
         self.block_bytes = int(round(mb[:nb].sum() * 2 ** 20))
         with one_blas_thread():
-            self.blocks = self._block_values(blocked)
+            self.blocks = self._block_values(blocked, set(fly))
         b = self.basis
         self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
         self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
@@ -338,6 +346,7 @@ class PairPlan:
         self.fly_ptr, self.fly_idx = csr(lists)
         self.flyn_ptr, self.flyn_idx = csr(node_lists)
         self.n_block_pairs = len(blocked)
+        self.n_stored_blocks = stored
 
     def _rho(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
         """Scaled distances ``(d_ij - a_i)/a_j`` of the pairs ``(ii, jj)``."""
@@ -367,33 +376,42 @@ class PairPlan:
         rot = 8.0 * (nw + int(order_mask(self.p).sum()))
         return np.where(self._table_pairs(ii, jj), rot, full)
 
-    def _block_values(self, blocked: list[tuple[int, int]]) -> np.ndarray | PlanBlocks:
+    def _block_values(self, blocked: list[tuple[int, int]],
+                      fly: set | frozenset = frozenset()) -> np.ndarray | PlanBlocks:
         """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
         coaxial table where it applies (``pair_blocks`` "table" or "table-all"), else
         built directly; with "table-all" the table pairs are kept in rotated form
-        (``rotated``, a :class:`.kernels_rotated.RotatedPairs`) and the stack is a
-        :class:`.kernels_rotated.PlanBlocks` that assembles them when indexed."""
+        (``rotated``, a :class:`.kernels_rotated.RotatedPairs`), those in ``fly`` (beyond
+        the memory budget) as direction and distance only (``fly_pairs``, rotated at
+        every product), and the stack is a :class:`.kernels_rotated.PlanBlocks` that
+        assembles them when indexed."""
         nv = self.basis.B.shape[1]
         ii = np.array([i for i, _ in blocked], dtype=np.int64)
         jj = np.array([j for _, j in blocked], dtype=np.int64)
         use = self._table_pairs(ii, jj)
         self.n_table_blocks = int(use.sum())
-        self.rotated = None
+        self.rotated = self.fly_pairs = None
         if not use.any():                                  # every block built directly
             return self._direct_blocks(blocked)
-        rho_max = table_range(self.p)
-        table = coaxial_table(self.p, rho_max)
-        u = self.centers[ii[use]] - self.centers[jj[use]]
+        table = coaxial_table(self.p, table_range(self.p))
+        u = self.centers[ii] - self.centers[jj]
         u /= np.linalg.norm(u, axis=1)[:, None]
-        Dn = wigner_directions(u, self.p)
-        vals = table.values(self._rho(ii[use], jj[use]))
+        rho = self._rho(ii, jj)
         rest = np.nonzero(~use)[0]
         direct = (self._direct_blocks([blocked[k] for k in rest]) if rest.size
                   else np.zeros((0, nv, nv)))
         if self.pair_blocks == "table-all":
-            self.rotated = RotatedPairs.build(Dn, vals, order_mask(self.p), self._output_map)
-            self.dense_pos, self.rot_pos = rest, np.nonzero(use)[0]
-            return PlanBlocks(direct, rest, self.rotated, self.rot_pos)
+            late = np.array([pair in fly for pair in blocked], dtype=bool)
+            keep, late = np.nonzero(use & ~late)[0], np.nonzero(use & late)[0]
+            self.rotated = RotatedPairs.build(wigner_directions(u[keep], self.p),
+                                              table.values(rho[keep]), order_mask(self.p),
+                                              self._output_map)
+            if late.size:
+                self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
+            self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
+            return PlanBlocks(direct, self.rotated, self.fly_pairs, (rest, keep, late))
+        Dn = wigner_directions(u[use], self.p)
+        vals = table.values(rho[use])
         E = np.empty((len(blocked), nv, nv))
         E[use] = rotate_blocks(vals, Dn, degree_slices(self.p), left_matrix=self._output_map,
                                pattern=order_mask(self.p))
