@@ -36,41 +36,76 @@ __all__ = ["RotatedPairs", "FlyPairs", "PlanBlocks", "rotated_forward", "rotated
            "rotated_transpose_serial", "rotated_both", "rotated_both_serial"]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _rotate_in(D: np.ndarray, layout: np.ndarray, c: np.ndarray, out: np.ndarray,
                transpose: bool) -> None:
-    """``out = D c`` (or ``D^T c``) for one pair's block-diagonal rotation ``D``."""
+    """``out = D c`` (or ``D^T c``) for one pair's block-diagonal rotation ``D`` (inner
+    loops over contiguous rows of ``D``)."""
     for n in range(layout.shape[0]):
         lo, kinds, off = layout[n, 0], layout[n, 1], layout[n, 2]
         w = 2 * n + 1
-        for t in range(kinds):
-            base = lo + t * w
-            for a in range(w):
+        if transpose:
+            for q in range(lo, lo + kinds * w):
+                out[q] = 0.0
+            for b in range(w):
+                row = off + b * w
+                for t in range(kinds):
+                    base = lo + t * w
+                    cb = c[base + b]
+                    for a in range(w):
+                        out[base + a] += D[row + a] * cb
+        else:
+            for t in range(kinds):
+                base = lo + t * w
+                for a in range(w):
+                    row = off + a * w
+                    acc = 0.0
+                    for b in range(w):
+                        acc += D[row + b] * c[base + b]
+                    out[base + a] = acc
+
+
+@njit(cache=True, fastmath=True)
+def _coaxial(vals: np.ndarray, groups: np.ndarray, x: np.ndarray, y: np.ndarray,
+             transpose: bool) -> None:
+    """``y = E x`` (or ``E^T x``) for a coaxial block stored as one dense block per
+    azimuthal order (``groups``: first coefficient in order-major order and offset in
+    ``vals``), on coefficients in order-major order."""
+    for g in range(groups.shape[0] - 1):
+        s0, off = groups[g, 0], groups[g, 1]
+        s = groups[g + 1, 0] - s0
+        if transpose:
+            for b in range(s):
+                y[s0 + b] = 0.0
+            for a in range(s):
+                row = off + a * s
+                xa = x[s0 + a]
+                for b in range(s):
+                    y[s0 + b] += vals[row + b] * xa
+        else:
+            for a in range(s):
+                row = off + a * s
                 acc = 0.0
-                for b in range(w):
-                    if transpose:
-                        acc += D[off + b * w + a] * c[base + b]
-                    else:
-                        acc += D[off + a * w + b] * c[base + b]
-                out[base + a] = acc
+                for b in range(s):
+                    acc += vals[row + b] * x[s0 + b]
+                y[s0 + a] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
                   work: np.ndarray) -> None:
     """``acc += L D E D^T c`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
-    Ds, vs, ptr, idx, layout, dev, L = form
-    D, vals = Ds[k], vs[k]
+    Ds, vs, perm, groups, layout, dev, L = form
+    D = Ds[k]
     nv = c.size
-    cp, y = work[0], work[1]
+    cp, y, z = work[0], work[1], work[2]
     _rotate_in(D, layout, c, cp, True)
-    for r in range(nv):
-        s = 0.0
-        for j in range(ptr[r], ptr[r + 1]):
-            s += vals[j] * cp[idx[j]]
-        y[r] = s
-    z = work[2]
-    _rotate_in(D, layout, y, z, False)
+    for q in range(nv):                          # to order-major
+        y[q] = cp[perm[q]]
+    _coaxial(vs[k], groups, y, z, False)
+    for q in range(nv):                          # back to the basis order
+        cp[perm[q]] = z[q]
+    _rotate_in(D, layout, cp, z, False)
     for i in range(dev.size):                    # rows of L that differ from the identity
         s = 0.0
         for j in range(nv):
@@ -82,14 +117,14 @@ def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
         acc[r] += z[r]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
                     work: np.ndarray) -> None:
     """``out += D E^T D^T L^T x`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
-    Ds, vs, ptr, idx, layout, dev, L = form
-    D, vals = Ds[k], vs[k]
+    Ds, vs, perm, groups, layout, dev, L = form
+    D = Ds[k]
     nv = x.size
-    x1, x2 = work[0], work[1]
+    x1, x2, x3 = work[0], work[1], work[2]
     for r in range(nv):
         x1[r] = x[r]
     for i in range(dev.size):
@@ -99,13 +134,12 @@ def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
         for j in range(nv):
             x1[j] += L[i, j] * xi
     _rotate_in(D, layout, x1, x2, True)
-    x3 = work[2]
-    x3[:] = 0.0
-    for r in range(nv):
-        xr = x2[r]
-        for j in range(ptr[r], ptr[r + 1]):
-            x3[idx[j]] += vals[j] * xr
-    _rotate_in(D, layout, x3, x1, False)
+    for q in range(nv):
+        x1[q] = x2[perm[q]]
+    _coaxial(vs[k], groups, x1, x3, True)
+    for q in range(nv):
+        x2[perm[q]] = x3[q]
+    _rotate_in(D, layout, x2, x1, False)
     for r in range(nv):
         out[r] += x1[r]
 
@@ -141,12 +175,36 @@ def _both(form, tptr, src, coef, acc, x, part):
             _pair_transpose(form, k, x[i], part[k], work)
 
 
-rotated_forward = njit(parallel=True, cache=True)(_forward)
-rotated_forward_serial = njit(cache=True)(_forward)
-rotated_transpose = njit(parallel=True, cache=True)(_transpose)
-rotated_transpose_serial = njit(cache=True)(_transpose)
-rotated_both = njit(parallel=True, cache=True)(_both)
-rotated_both_serial = njit(cache=True)(_both)
+rotated_forward = njit(parallel=True, fastmath=True, cache=True)(_forward)
+rotated_forward_serial = njit(fastmath=True, cache=True)(_forward)
+rotated_transpose = njit(parallel=True, fastmath=True, cache=True)(_transpose)
+rotated_transpose_serial = njit(fastmath=True, cache=True)(_transpose)
+rotated_both = njit(parallel=True, fastmath=True, cache=True)(_both)
+rotated_both_serial = njit(fastmath=True, cache=True)(_both)
+
+
+def _order_major(pattern: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For a pattern that couples coefficients in groups (the equal-order couplings of a
+    coaxial block, a block diagonal after a permutation): the permutation grouping them,
+    per group its first position and the offset of its dense block, and the positions of
+    those dense blocks' entries (row-major) among the pattern's (row-major)."""
+    nv = pattern.shape[0]
+    label = np.full(nv, -1, dtype=np.int64)
+    for r in range(nv):                           # connected groups of the pattern
+        if label[r] < 0:
+            label[np.nonzero(pattern[r])[0]] = r
+    perm = np.argsort(label, kind="stable").astype(np.int64)
+    lab = label[perm]
+    starts = np.concatenate([[0], np.nonzero(np.diff(lab))[0] + 1, [nv]]).astype(np.int64)
+    sizes = np.diff(starts)
+    groups = np.stack([starts, np.concatenate([[0], np.cumsum(sizes ** 2)])], axis=1)
+    pos = np.full((nv, nv), -1, dtype=np.int64)
+    pos[pattern] = np.arange(int(pattern.sum()))
+    gather = np.concatenate([pos[np.ix_(perm[a:b], perm[a:b])].ravel()
+                             for a, b in zip(starts[:-1], starts[1:])])
+    if (gather < 0).any() or gather.size != pattern.sum():
+        raise ValueError("the pattern is not block diagonal up to a permutation")
+    return perm, groups.astype(np.int64), gather
 
 
 @dataclass(frozen=True)
@@ -161,9 +219,16 @@ class RotatedPairs:
     D : ndarray, shape (K, nw)
         Per pair the real Wigner matrices of degree 0..p, row-major, one after the other.
     vals : ndarray, shape (K, nnz)
-        Per pair the coaxial block's entries on the pattern ``ptr`` / ``idx``.
+        Per pair the coaxial block's entries, one dense block per azimuthal order m
+        (rows and columns in the order-major order ``perm``), row-major.
     ptr, idx : ndarray
-        Row pointers (nv + 1) and columns (nnz) of the equal-order pattern.
+        Row pointers (nv + 1) and columns (nnz) of the equal-order pattern (basis order).
+    perm : ndarray
+        The coefficients sorted by order m (stable).
+    groups : ndarray, shape (G + 1, 2)
+        Per order: its first position in ``perm`` and the offset of its block in ``vals``.
+    gather : ndarray
+        ``vals = (entries on the pattern, row-major)[:, gather]``.
     layout : ndarray, shape (p + 1, 3)
         Per degree: first coefficient, number of kinds, offset of its Wigner matrix.
     dev : ndarray
@@ -180,6 +245,9 @@ class RotatedPairs:
     layout: np.ndarray
     dev: np.ndarray
     L: np.ndarray
+    perm: np.ndarray
+    groups: np.ndarray
+    gather: np.ndarray
 
     @classmethod
     def build(cls, Dn: list[np.ndarray], vals: np.ndarray, pattern: np.ndarray,
@@ -197,15 +265,17 @@ class RotatedPairs:
         D = np.concatenate([d.reshape(K, -1) for d in Dn], axis=1) if K else np.zeros((0, off))
         nv = pattern.shape[0]
         dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
-        return cls(p, np.ascontiguousarray(D), np.ascontiguousarray(vals, dtype=float),
+        perm, groups, gather = _order_major(pattern)
+        return cls(p, np.ascontiguousarray(D),
+                   np.ascontiguousarray(np.asarray(vals, dtype=float)[:, gather]),
                    np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
                    np.nonzero(pattern)[1].astype(np.int64), layout, dev.astype(np.int64),
-                   np.ascontiguousarray(left_matrix[dev]))
+                   np.ascontiguousarray(left_matrix[dev]), perm, groups, gather)
 
     @property
     def form(self) -> tuple:
         """The tuple the compiled kernels read."""
-        return (self.D, self.vals, self.ptr, self.idx, self.layout, self.dev, self.L)
+        return (self.D, self.vals, self.perm, self.groups, self.layout, self.dev, self.L)
 
     @property
     def nbytes(self) -> int:
@@ -231,7 +301,9 @@ class RotatedPairs:
         pattern[np.repeat(np.arange(nv), np.diff(self.ptr)), self.idx] = True
         left = np.eye(nv)
         left[self.dev] = self.L
-        return rotate_blocks(self.vals[sel], Dn, degree_slices(self.p), left_matrix=left,
+        vals = np.empty((sel.size, self.vals.shape[1]))
+        vals[:, self.gather] = self.vals[sel]
+        return rotate_blocks(vals, Dn, degree_slices(self.p), left_matrix=left,
                              pattern=pattern)
 
 
