@@ -6,13 +6,16 @@ source grid at each accuracy rung of relaxed GMRES, which get exact-expansion bl
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
 
-The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`): directly
-(``pair_blocks="direct"``, the default: one exact-expansion response per pair), or with
-``pair_blocks="table"`` the block of a projected-zone pair of two spheres of equal radius
-is the coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into
-the pair's direction (:mod:`.rotation`); node-sampled pairs (orientation-dependent by
-construction), pairs of unequal radii (the radius ratio would be a second table axis),
-pairs beyond the table's range and p = 1 are built directly there too.  Nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`,
+The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`).  By default
+(``pair_blocks="table-all"``) the block of a pair of two spheres of equal radius is the
+coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into the
+pair's direction (:mod:`.rotation`), kept in rotated form (:mod:`.kernels_rotated`: the
+rotation and the coaxial entries, applied at product time); pairs of unequal radii (the
+radius ratio would be a second table axis), pairs beyond the table's range and p = 1 are
+built directly and stored assembled.  ``pair_blocks="direct"`` builds every block
+directly (one exact-expansion response per pair: the reference); ``"table"`` takes only
+projected-zone pairs from the table, assembled.  Nothing that reads the blocks
+(:mod:`.blocks`, :mod:`.split`,
 :mod:`.adjoint`) depends on how they were built.
 """
 
@@ -49,9 +52,10 @@ discretisation does not change with ``eps_gmres``; beyond, values at the nodes
 docs/mobility.md, "Measured choices behind the defaults"."""
 
 PAIR_BLOCKS = ("direct", "table", "table-all")
-"""How the stored blocks are built: all directly (the reference and the default), from the
-coaxial table and rotations for the projected zone, or from the table for node-sampled
-pairs too (their node sampling replaced by the exact projection)."""
+"""How the stored blocks are built: all directly (the reference), from the coaxial table
+and rotations for the projected zone (assembled), or from the table for every
+equal-radius pair, kept in rotated form (the default; node sampling replaced by the exact
+projection)."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -108,8 +112,8 @@ class PairPlan:
         Far-field engine (the FMM works on the native grid and is not relaxed).
     near_block_mb : float
         Memory budget of the stored blocks.
-    pair_blocks : {"direct", "table", "table-all"}
-        How the stored blocks are built (see :meth:`_build_blocks`).
+    pair_blocks : {"table-all", "table", "direct"}
+        How the stored blocks are built (see :meth:`_build_blocks`; default "table-all").
 
     Attributes
     ----------
@@ -122,10 +126,19 @@ class PairPlan:
     n_far_pairs, n_near_pairs, n_block_pairs : int
         Pairs by direct quadrature (not blocked), by expansions, with a stored block.
     n_table_blocks : int
-        Stored blocks taken from the coaxial table (the others are built directly).
+        Blocks taken from the coaxial table (the others are built directly).
+    n_stored_blocks : int
+        Blocks within the memory budget (the others of ``n_block_pairs`` are table
+        blocks rotated at every product).
+    block_bytes : int
+        Memory of the stored blocks.
+    rotated, fly_pairs : RotatedPairs or None, FlyPairs or None
+        With "table-all": the stored table pairs in rotated form, and those beyond the
+        budget; ``dense_pos``, ``rot_pos``, ``fly_pos`` are the positions of the
+        assembled, rotated and rotated-on-the-fly pairs in the block order.
     blocks, block_tgt, block_src, block_ptr : ndarray
-        Stored blocks (traction on sphere i per VSH coefficient of sphere j), sorted by
-        target sphere.
+        Blocks (traction on sphere i per VSH coefficient of sphere j), sorted by target
+        sphere (``blocks`` a :class:`.kernels_rotated.PlanBlocks` with "table-all").
     fly_ptr, fly_idx, flyn_ptr, flyn_idx : ndarray
         On-the-fly expansion pairs per target sphere: projected zone, and node-sampled.
     levels, native, lvl_spheres, lvl_base, n_src, src_xyz, src_scale, synth :
@@ -292,10 +305,12 @@ class PairPlan:
         the native nodes is orientation-dependent by construction), pairs of unequal radii
         (the radius ratio would be a second table axis), pairs beyond the table's range
         and p = 1 are built directly (:meth:`_direct_blocks`, the reference, used for every
-        pair with ``pair_blocks="direct"``, the default).  ``pair_blocks="table-all"``
-        takes the equal-radius node-sampled pairs from the table too: their node
-        sampling is replaced by the exact projection (a different discretisation of
-        those pairs, by the sampling's aliasing error; docs/mobility.md)."""
+        pair with ``pair_blocks="direct"``).  ``pair_blocks="table-all"`` (the default)
+        takes the equal-radius node-sampled pairs from the table too (their node sampling
+        is replaced by the exact projection, docs/mobility.md) and keeps the table pairs in
+        rotated form; the budget counts each pair at what it stores, and table pairs
+        beyond it keep their table blocks, rotated at every product (``fly_pairs``), so
+        the discretisation does not depend on the budget."""
         M = self.M
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
         # than p (a stored block is then much cheaper per product than the sum; measured in
