@@ -178,3 +178,15 @@ def test_mobility_with_no_block_budget_equals_the_stored_table_blocks():
     assert B.plan.n_stored_blocks == 0 and B.plan.n_block_pairs == A.plan.n_block_pairs
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
+
+
+@pytest.mark.parametrize("name", ["forward", "transpose", "both"])
+def test_serial_and_parallel_builds_have_their_own_cache_entries(name):
+    """numba caches a compiled function on disk under its qualified name and signature,
+    whatever ``parallel`` says: the two builds must differ in name, or the serial build
+    can be loaded for the parallel one."""
+    par, ser = getattr(kr, f"rotated_{name}"), getattr(kr, f"rotated_{name}_serial")
+    assert par.targetoptions.get("parallel") and not ser.targetoptions.get("parallel")
+    assert par.py_func.__qualname__ != ser.py_func.__qualname__
+    assert par._cache._cache_path == ser._cache._cache_path                # same folder
+    assert par._cache._index_name != ser._cache._index_name               # own entries
