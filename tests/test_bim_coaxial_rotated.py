@@ -188,5 +188,6 @@ def test_serial_and_parallel_builds_have_their_own_cache_entries(name):
     par, ser = getattr(kr, f"rotated_{name}"), getattr(kr, f"rotated_{name}_serial")
     assert par.targetoptions.get("parallel") and not ser.targetoptions.get("parallel")
     assert par.py_func.__qualname__ != ser.py_func.__qualname__
-    assert par._cache._cache_path == ser._cache._cache_path                # same folder
-    assert par._cache._index_name != ser._cache._index_name               # own entries
+    files = par._cache._cache_file, ser._cache._cache_file
+    assert files[0]._cache_path == files[1]._cache_path                   # same folder
+    assert files[0]._index_name != files[1]._index_name                   # own entries
