@@ -29,6 +29,10 @@ from lcpbench.problems.suspension.bim.sphere_vsh import (
     vsh_basis,
 )
 
+# some tests here set small block budgets on purpose (the on-the-fly path); the pair plan
+# warns when a budget leaves pairs unblocked (bim/pairs.py)
+pytestmark = pytest.mark.filterwarnings("ignore:near_block_mb = .* leaves:RuntimeWarning")
+
 _SERIES = pathlib.Path(__file__).with_name("stokes_series.py")
 _spec = importlib.util.spec_from_file_location("stokes_series_for_bim", _SERIES)
 series = importlib.util.module_from_spec(_spec)
@@ -284,12 +288,16 @@ def test_levels_and_blocks_agree_with_all_expansions():
     c = _random_cluster(6, 3, 9.0)
     # node sampling for both, so that only the quadrature split differs (the projected
     # near field differs from node sampling by the order-p discretisation error)
-    A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3, near_upsample=1)
+    # the direct build (pair_blocks="direct"): table blocks are the exact projection, not
+    # node sampling (tests/test_bim_coaxial.py compares them)
+    A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3, near_upsample=1,
+                    pair_blocks="direct")
     assert A.n_block_pairs > 0 and A.plan.fly_idx.size > 0 and A.n_far_pairs > 0
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= 2
     s = np.random.default_rng(0).standard_normal(A.M * 3 * A.N)
     s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
-    B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_upsample=1, quad_tol=1e-300)
+    B = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_upsample=1, quad_tol=1e-300,
+                    pair_blocks="direct")
     # stored blocks act in coefficients (their output's nodal complement never reaches a
     # velocity, bim/pairs.py), so compare the outputs' degree <= p parts
     Ap = vsh_basis(6).A
@@ -341,7 +349,9 @@ def test_projected_near_field_keeps_the_operator_definite(p):
         lam = np.linalg.eigvals(_dense_bie(BimMobility(c, 1.0, p=p))).real.min()
         assert lam > 0.15, (axis, lam)
     c = np.array([[0.0, 0.0, 0.0], [2.01, 0.0, 0.0]])
-    assert np.linalg.eigvals(_dense_bie(BimMobility(c, 1.0, p=p, near_upsample=1))).real.min() < 0
+    # node sampling of the direct build (the table's blocks are the exact projection)
+    node = BimMobility(c, 1.0, p=p, near_upsample=1, pair_blocks="direct")
+    assert np.linalg.eigvals(_dense_bie(node)).real.min() < 0
 
 
 def test_gmres_converges_on_a_touching_lattice_at_even_p():
@@ -357,8 +367,9 @@ def test_gmres_converges_on_a_touching_lattice_at_even_p():
 def test_projected_blocks_equal_on_the_fly_projection():
     c = _random_cluster(5, 5, 6.0)
     ft = np.random.default_rng(4).standard_normal(30)
-    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
-    B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0)
+    # the direct build: its blocks are the on-the-fly projection stored
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, pair_blocks="direct")
+    B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0, pair_blocks="direct")
     assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
@@ -370,8 +381,10 @@ def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
     equals the one with every pair evaluated on the fly at the nodes."""
     c = _random_cluster(5, 5, 6.0)
     ft = np.random.default_rng(5).standard_normal(30)
-    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1)
-    B = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, near_block_mb=0)
+    # the direct build: node-sampled blocks (the table's are the exact projection)
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, pair_blocks="direct")
+    B = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, near_block_mb=0,
+                    pair_blocks="direct")
     assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
     s = np.random.default_rng(6).standard_normal(A.M * 3 * A.N)
     nodal = np.abs(A.apply_bie(s) - B.apply_bie(s)).max() / np.abs(s).max()
@@ -387,7 +400,8 @@ def test_preconditioned_operator_drops_only_the_identity_self_part():
     pairs are blocked, on the fly or summed directly."""
     c = _random_cluster(5, 5, 6.0)
     y = np.random.default_rng(8).standard_normal(5 * 3 * sphere_grid(4).size)
-    for kw, blocked in (({}, True), ({"near_block_mb": 0}, False)):
+    # no budget, direct build: the pairs on the fly (the table's are rotated on the fly)
+    for kw, blocked in (({}, True), ({"near_block_mb": 0, "pair_blocks": "direct"}, False)):
         A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, **kw)
         plan = A.plan
         assert (A.n_block_pairs == 20) == blocked

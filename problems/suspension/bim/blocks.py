@@ -13,7 +13,7 @@ blocks and :class:`.split.SplitBlocks` for the distance-split low fidelity's:
 
 from __future__ import annotations
 
-from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,18 +25,55 @@ from .kernels_adjoint import (
     apply_blocks_both,
     apply_blocks_both_serial,
 )
+from .kernels_rotated import (
+    FlyPairs,
+    RotatedPairs,
+    rotated_both,
+    rotated_both_serial,
+    rotated_forward,
+    rotated_forward_serial,
+    rotated_transpose,
+    rotated_transpose_serial,
+)
 from .pairs import PairPlan
 
 __all__ = ["StoredBlocks"]
 
 
+class _Dense(NamedTuple):
+    """Blocks kept assembled, sorted by target sphere: values, targets, sources, pointers
+    by target, and (for transposes) their order and pointers by source and the sum of
+    per-block parts by source."""
+
+    blocks: np.ndarray
+    tgt: np.ndarray
+    src: np.ndarray
+    ptr: np.ndarray
+    sorder: np.ndarray
+    sptr: np.ndarray
+    by_source: sp.csr_matrix
+
+
+def _part(blocks, tgt: np.ndarray, src: np.ndarray, M: int) -> _Dense:
+    """The :class:`_Dense` record of blocks (or a rotated form) with targets ``tgt``
+    (sorted) and sources ``src``."""
+    order = np.argsort(src, kind="stable").astype(np.int64)
+    nb = src.size
+    return _Dense(blocks, tgt, src,
+                  np.searchsorted(tgt, np.arange(M + 1)).astype(np.int64),
+                  order, np.searchsorted(src[order], np.arange(M + 1)).astype(np.int64),
+                  sp.csr_matrix((np.ones(nb), (src, np.arange(nb))), shape=(M, nb)))
+
+
 class StoredBlocks:
-    """The plan's dense near-field blocks as the operator's near-field part.
+    """The plan's near-field blocks as the operator's near-field part: blocks stored
+    assembled (``plan.blocks``, or its dense part), and with ``pair_blocks="table-all"``
+    the table pairs in rotated form (``plan.rotated``, :mod:`.kernels_rotated`).
 
     Parameters
     ----------
     plan : PairPlan
-        The pair plan whose ``blocks`` (sorted by target sphere) are applied.
+        The pair plan whose blocks (sorted by target sphere) are applied.
     """
 
     fused = True
@@ -44,11 +81,57 @@ class StoredBlocks:
 
     def __init__(self, plan: PairPlan) -> None:
         self.plan = plan
+        self.rotated: RotatedPairs | None = getattr(plan, "rotated", None)
+        tgt, src = plan.block_tgt, plan.block_src
+        self.fly: FlyPairs | None = getattr(plan, "fly_pairs", None)
+        self._fly = None
+        if self.rotated is None:
+            self._dense = _part(plan.blocks, tgt, src, plan.M)
+            self._rot = None
+        else:
+            d, r = plan.dense_pos, plan.rot_pos
+            self._dense = _part(plan.blocks.dense, tgt[d], src[d], plan.M)
+            self._rot = _part(self.rotated.form, tgt[r], src[r], plan.M)
+            if self.fly is not None:
+                self._fly = [_part(None, tgt[plan.fly_pos[s]], src[plan.fly_pos[s]], plan.M)
+                             for s in self.fly.chunks()]
 
     @property
     def work(self) -> int:
-        """Multiply-adds of one product with the blocks."""
-        return int(self.plan.blocks.size)
+        """Multiply-adds of one product with the blocks (those rotated at each product
+        counted as if stored)."""
+        rot = 0 if self.rotated is None else self.rotated.work
+        if self.rotated is not None and self.rotated.vals.shape[0]:
+            per_pair = self.rotated.work / self.rotated.vals.shape[0]
+            rot += int(per_pair * (0 if self.fly is None else self.fly.rho.size))
+        return int(self._dense.blocks.size) + rot
+
+    def _fly_parts(self):
+        """Per chunk of the pairs rotated at each product: their record with their rotated
+        form in place of blocks."""
+        if self._fly is None:
+            return []
+        return [part._replace(blocks=self.fly.rotated(s).form)
+                for s, part in zip(self.fly.chunks(), self._fly)]
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the stored near field (per-pair data)."""
+        rot = 0 if self.rotated is None else self.rotated.nbytes
+        return int(self._dense.blocks.nbytes) + rot
+
+    def _coef_acc(self, coef: np.ndarray) -> np.ndarray:
+        """The blocks' output in coefficients ``(M, nv)``."""
+        plan, d = self.plan, self._dense
+        acc = np.zeros((plan.M, plan.block_synth.shape[0]))
+        if d.src.size:
+            fn = apply_blocks if d.blocks.size > PARALLEL_WORK else apply_blocks_serial
+            fn(d.blocks, d.ptr, d.src, coef, acc)
+        fn = rotated_forward if self.work > PARALLEL_WORK else rotated_forward_serial
+        for r in [self._rot] + self._fly_parts():
+            if r is not None and r.src.size:
+                fn(r.blocks, r.ptr, r.src, np.ascontiguousarray(coef), acc)
+        return acc
 
     def apply(self, coef: np.ndarray) -> np.ndarray:
         """The stored blocks applied to the VSH coefficients ``coef``, on the grid
@@ -56,22 +139,19 @@ class StoredBlocks:
         plan = self.plan
         if not plan.n_block_pairs:
             return np.zeros((plan.M, 3 * plan.N))
-        fn = apply_blocks if plan.blocks.size > PARALLEL_WORK else apply_blocks_serial
-        acc = np.zeros((plan.M, plan.blocks.shape[1]))
-        fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc)
-        return dense_rows(acc, plan.block_synth)
+        return dense_rows(self._coef_acc(coef), plan.block_synth)
 
-    @cached_property
-    def _by_source(self) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
-        """The blocks by source sphere (order, pointers) and the sum of per-block parts by
-        source sphere, for the transposed products (built on first use)."""
-        plan = self.plan
-        order = np.argsort(plan.block_src, kind="stable").astype(np.int64)
-        ptr = np.searchsorted(plan.block_src[order], np.arange(plan.M + 1)).astype(np.int64)
-        nb = plan.block_src.size
-        by_source = sp.csr_matrix((np.ones(nb), (plan.block_src, np.arange(nb))),
-                                  shape=(plan.M, nb))
-        return order, ptr, by_source
+    def _add_transpose_coef(self, x: np.ndarray, coef_bar: np.ndarray) -> None:
+        """Adds the transposed blocks applied to adjoint coefficients ``x`` (M, nv)."""
+        d = self._dense
+        if d.src.size:
+            fn = (apply_blocks_adjoint if d.blocks.size > PARALLEL_WORK
+                  else apply_blocks_adjoint_serial)
+            fn(d.blocks, d.sptr, d.sorder, d.tgt, x, coef_bar)
+        fn = rotated_transpose if self.work > PARALLEL_WORK else rotated_transpose_serial
+        for r in [self._rot] + self._fly_parts():
+            if r is not None and r.src.size:
+                fn(r.blocks, r.sptr, r.sorder, r.tgt, x, coef_bar)
 
     def add_transpose(self, ob: np.ndarray, coef_bar: np.ndarray) -> None:
         """Adds the transposed blocks' share of adjoint tractions ``ob`` (M, 3N) to the
@@ -79,11 +159,8 @@ class StoredBlocks:
         plan = self.plan
         if not plan.n_block_pairs:
             return
-        order, ptr, _ = self._by_source
-        fn = (apply_blocks_adjoint if plan.blocks.size > PARALLEL_WORK
-              else apply_blocks_adjoint_serial)
-        fn(plan.blocks, ptr, order, plan.block_tgt, dense_rows(ob, plan.block_synth_T),
-           coef_bar)
+        self._add_transpose_coef(np.ascontiguousarray(dense_rows(ob, plan.block_synth_T)),
+                                 coef_bar)
 
     def apply_both(self, coef: np.ndarray, ob: np.ndarray, coef_bar: np.ndarray,
                    out: np.ndarray) -> None:
@@ -92,10 +169,16 @@ class StoredBlocks:
         plan = self.plan
         if not plan.n_block_pairs:
             return
-        part = np.empty((plan.block_src.size, coef.shape[1]))
-        fn = apply_blocks_both if plan.blocks.size > PARALLEL_WORK else apply_blocks_both_serial
-        acc = np.zeros((plan.M, plan.blocks.shape[1]))
-        fn(plan.blocks, plan.block_ptr, plan.block_src, coef, acc,
-           dense_rows(ob, plan.block_synth_T), part)
+        x = np.ascontiguousarray(dense_rows(ob, plan.block_synth_T))
+        coef = np.ascontiguousarray(coef)
+        acc = np.zeros((plan.M, plan.block_synth.shape[0]))
+        rot = (rotated_both, rotated_both_serial)
+        for part, fns in ([(self._dense, (apply_blocks_both, apply_blocks_both_serial))]
+                          + [(r, rot) for r in [self._rot] + self._fly_parts()]):
+            if part is None or not part.src.size:
+                continue
+            fn = fns[0] if self.work > PARALLEL_WORK else fns[1]
+            bar = np.empty((part.src.size, coef.shape[1]))
+            fn(part.blocks, part.ptr, part.src, coef, acc, x, bar)
+            coef_bar += part.by_source @ bar
         out += dense_rows(acc, plan.block_synth)
-        coef_bar += self._by_source[2] @ part

@@ -167,6 +167,9 @@ class BimMobility(LinearOperator):
         twice the source radius is an expansion pair (projected) at any ``eps_gmres``,
         so the discretisation does not depend on the tolerance; pairs farther apart
         are sampled at the nodes.
+    pair_blocks : {"table-all", "table", "direct"}
+        How the stored near-field blocks are built (:class:`.setup.BimSetup`): from the
+        coaxial table in rotated form (default), or directly (the reference).
 
     Attributes
     ----------
@@ -192,13 +195,15 @@ class BimMobility(LinearOperator):
                  maxiter: int = 500, near_block_mb: float = 4096.0,
                  quad_tol: float | None = None, far: str = "direct",
                  near_upsample: float = NEAR_UPSAMPLE,
-                 krylov: KrylovBudget | float | None = None) -> None:
+                 krylov: KrylovBudget | float | None = None,
+                 pair_blocks: str = "table-all") -> None:
         eps = check_tolerance(eps_gmres)
         budget = krylov if isinstance(krylov, KrylovBudget) else (
             KrylovBudget() if krylov is None else KrylovBudget(krylov))
         tol = default_quad_tol(eps) if quad_tol is None else float(quad_tol)
         setup = BimSetup(centers, radii, p=p, mu=mu, quad_tol=tol, far=far,
-                         near_upsample=near_upsample, near_block_mb=near_block_mb)
+                         near_upsample=near_upsample, near_block_mb=near_block_mb,
+                         pair_blocks=pair_blocks)
         cap = (recycle if recycle is not None else 0 if budget.nbytes == 0
                else max(default_capacity(setup.unknowns, budget.megabytes), BUDGET_FLOOR))
         self._assemble(setup, StoredBlocks(setup.plan), eps_gmres=eps, on_failure=on_failure,

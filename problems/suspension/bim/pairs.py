@@ -6,21 +6,32 @@ source grid at each accuracy rung of relaxed GMRES, which get exact-expansion bl
 within a memory budget, closest first) and which are evaluated on the fly, and the
 source points of the direct sums.
 
-The stored near-field blocks are built directly here (:meth:`PairPlan._build_blocks`, one
-exact-expansion response per pair).  This is the one place where precomputed rotation
-tables would enter: a block of a pair at scaled distance ``rho`` along a direction is the
-block of a tabulated pair at ``rho`` along the z axis rotated into that direction, so a
-table lookup and a rotation of the coefficients would replace the direct build, and
-nothing that reads ``blocks`` (:mod:`.blocks`, :mod:`.split`, :mod:`.adjoint`) changes.
+The stored near-field blocks are built here (:meth:`PairPlan._build_blocks`).  By default
+(``pair_blocks="table-all"``) the block of a pair of two spheres of equal radius is the
+coaxial table's block at the pair's scaled distance (:mod:`.coaxial`) rotated into the
+pair's direction (:mod:`.rotation`), kept in rotated form (:mod:`.kernels_rotated`: the
+rotation and the coaxial entries, applied at product time); pairs of unequal radii (the
+radius ratio would be a second table axis), pairs beyond the table's range and p = 1 are
+built directly and stored assembled.  ``pair_blocks="direct"`` builds every block
+directly (one exact-expansion response per pair: the reference); ``"table"`` takes only
+projected-zone pairs from the table, assembled.  Nothing that reads the blocks
+(:mod:`.blocks`, :mod:`.split`,
+:mod:`.adjoint`) depends on how they were built.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
 
+from lcpbench.toolkit.blas import one_blas_thread
+
+from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
 from .kernels import real_block_columns, traction_response
+from .kernels_rotated import FlyPairs, PlanBlocks, RotatedPairs
+from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
     VSHBasis,
@@ -31,7 +42,7 @@ from .sphere_vsh import (
     sphere_grid,
 )
 
-__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "csr"]
+__all__ = ["PairPlan", "Grids", "PROJECT_RHO", "RELAX_STEP", "PAIR_BLOCKS", "csr"]
 
 PROJECT_RHO = 3.0
 """Pairs with ``rho = (d_ij - a_i)/a_j < 3`` (gap below 2 a_j) are always expansion pairs
@@ -39,6 +50,12 @@ with the projected near field, whatever the quadrature tolerance, so that the
 discretisation does not change with ``eps_gmres``; beyond, values at the nodes
 (quadrature, or expansions at tight tolerances).  The measured choice of the radius:
 docs/mobility.md, "Measured choices behind the defaults"."""
+
+PAIR_BLOCKS = ("direct", "table", "table-all")
+"""How the stored blocks are built: all directly (the reference), from the coaxial table
+and rotations for the projected zone (assembled), or from the table for every
+equal-radius pair, kept in rotated form (the default; node sampling replaced by the exact
+projection)."""
 
 RELAX_STEP = 10.0
 """Ratio of successive quadrature tolerances on the ladder of relaxed GMRES."""
@@ -95,6 +112,8 @@ class PairPlan:
         Far-field engine (the FMM works on the native grid and is not relaxed).
     near_block_mb : float
         Memory budget of the stored blocks.
+    pair_blocks : {"table-all", "table", "direct"}
+        How the stored blocks are built (see :meth:`_build_blocks`; default "table-all").
 
     Attributes
     ----------
@@ -106,9 +125,20 @@ class PairPlan:
         Source-grid order -> ordered pairs summed directly on it at full accuracy.
     n_far_pairs, n_near_pairs, n_block_pairs : int
         Pairs by direct quadrature (not blocked), by expansions, with a stored block.
+    n_table_blocks : int
+        Blocks taken from the coaxial table (the others are built directly).
+    n_stored_blocks : int
+        Blocks within the memory budget (the others of ``n_block_pairs`` are table
+        blocks rotated at every product).
+    block_bytes : int
+        Memory of the stored blocks.
+    rotated, fly_pairs : RotatedPairs or None, FlyPairs or None
+        With "table-all": the stored table pairs in rotated form, and those beyond the
+        budget; ``dense_pos``, ``rot_pos``, ``fly_pos`` are the positions of the
+        assembled, rotated and rotated-on-the-fly pairs in the block order.
     blocks, block_tgt, block_src, block_ptr : ndarray
-        Stored blocks (traction on sphere i per VSH coefficient of sphere j), sorted by
-        target sphere.
+        Blocks (traction on sphere i per VSH coefficient of sphere j), sorted by target
+        sphere (``blocks`` a :class:`.kernels_rotated.PlanBlocks` with "table-all").
     fly_ptr, fly_idx, flyn_ptr, flyn_idx : ndarray
         On-the-fly expansion pairs per target sphere: projected zone, and node-sampled.
     levels, native, lvl_spheres, lvl_base, n_src, src_xyz, src_scale, synth :
@@ -121,7 +151,14 @@ class PairPlan:
     """
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
-                 quad_tol: float, far: str, near_block_mb: float) -> None:
+                 quad_tol: float, far: str, near_block_mb: float,
+                 pair_blocks: str = "table-all") -> None:
+        if pair_blocks not in PAIR_BLOCKS:
+            raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'direct' (every block built "
+                             "directly), 'table' (coaxial table and rotations for the "
+                             "projected zone) or 'table-all' (the table for node-sampled "
+                             "pairs too)")
+        self.pair_blocks = pair_blocks
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
         self.quad_tol, self.far = quad_tol, far
         self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
@@ -246,7 +283,8 @@ class PairPlan:
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
         closest pairs first, within the memory budget; the other expansion pairs
-        are kept for on-the-fly evaluation.
+        are kept for on-the-fly evaluation (with one warning saying how many pairs the
+        budget left unblocked and what they would need).
 
         A block is stored in coefficients on both sides, ``A E`` (``nv x nv``: the
         traction's VSH coefficients of degree <= p per density coefficient), not as nodal
@@ -257,29 +295,162 @@ class PairPlan:
         the complement of a block's output never reaches a velocity (``tests/test_bim.py``
         checks it; docs/mobility.md has what it saves).
 
-        This direct build (one exact-expansion response per pair) is where precomputed
-        rotation tables would enter: a table lookup of the pair's scaled distance and a
-        rotation of the coefficients into the pair's direction would replace it."""
-        M, p = self.M, self.p
-        b = self.basis
-        nv = b.B.shape[1]
-        flat = np.argmax(np.abs(b.to_complex), axis=0)
-        cfac = b.to_complex[flat, np.arange(nv)]
+        With ``pair_blocks="table"`` the blocks of projected-zone pairs of equal radii come
+        from the coaxial table (:mod:`.coaxial`) rotated into the pair's direction
+        (:mod:`.rotation`): the exact projection of the traction onto degree p, the same
+        for every orientation, which the direct build approximates on the order-2p grid
+        fixed in the lab frame (they differ by that build's orientation-dependent error,
+        docs/mobility.md, "Coaxial pair table"; so do table blocks and the on-the-fly
+        projection of pairs the budget leaves unblocked).  Node-sampled pairs (sampling at
+        the native nodes is orientation-dependent by construction), pairs of unequal radii
+        (the radius ratio would be a second table axis), pairs beyond the table's range
+        and p = 1 are built directly (:meth:`_direct_blocks`, the reference, used for every
+        pair with ``pair_blocks="direct"``).  ``pair_blocks="table-all"`` (the default)
+        takes the equal-radius node-sampled pairs from the table too (their node sampling
+        is replaced by the exact projection, docs/mobility.md) and keeps the table pairs in
+        rotated form; the budget counts each pair at what it stores, and table pairs
+        beyond it keep their table blocks, rotated at every product (``fly_pairs``), so
+        the discretisation does not depend on the budget."""
+        M = self.M
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
         # than p (a stored block is then much cheaper per product than the sum; measured in
         # docs/mobility.md, "Blocks for fine-grid pairs")
         lv = self.level_of
-        fine = [L for L, q in enumerate(self.levels) if q > p]
+        fine = [L for L, q in enumerate(self.levels) if q > self.p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
         pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
-            d = np.array([np.linalg.norm(self.centers[i] - self.centers[j]) - self.radii[i]
-                          for i, j in pairs]) / np.array([self.radii[j] for _, j in pairs])
-            pairs = [pairs[k] for k in np.argsort(d, kind="stable")]
-        per_block = nv * nv * 8 / 2 ** 20
-        nb = min(len(pairs), int(self.near_block_mb // per_block)) if per_block > 0 else 0
+            pairs = [pairs[k] for k in np.argsort(self._rho(ii, jj), kind="stable")]
+        mb = self._block_bytes(np.array([i for i, _ in pairs], dtype=np.int64),
+                               np.array([j for _, j in pairs], dtype=np.int64)) / 2 ** 20
+        nb = int(np.searchsorted(np.cumsum(mb), self.near_block_mb * (1 + 1e-12), side="right"))
         blocked, rest = pairs[:nb], pairs[nb:]
-        blocked.sort()                                     # grouped by target sphere
+        if rest:
+            warnings.warn(f"near_block_mb = {self.near_block_mb:g} leaves {len(rest)} of "
+                          f"{len(pairs)} near pairs without a stored block (they would need "
+                          f"{mb[nb:].sum():.3g} MB more); they are evaluated on the fly "
+                          "at every product: raise near_block_mb to store them",
+                          RuntimeWarning, stacklevel=4)
+        fly: list[tuple[int, int]] = []
+        if self.pair_blocks == "table-all" and rest:      # table pairs: rotated on the fly
+            ri = np.array([i for i, _ in rest], dtype=np.int64)
+            rj = np.array([j for _, j in rest], dtype=np.int64)
+            ok = self._table_pairs(ri, rj) & (self.level_of[ri, rj] == -2)
+            fly = [rest[k] for k in np.nonzero(ok)[0]]
+            rest = [rest[k] for k in np.nonzero(~ok)[0]]
+        stored = len(blocked)
+        blocked = sorted(blocked + fly)                    # grouped by target sphere
+        self.block_bytes = int(round(mb[:nb].sum() * 2 ** 20))
+        with one_blas_thread():
+            self.blocks = self._block_values(blocked, set(fly))
+        b = self.basis
+        self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
+        self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
+        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
+        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
+        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
+        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
+        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
+        for i, j in rest:
+            if self.level_of[i, j] == -2:
+                zone = self.near_proj is None or self._projected(i, j)
+                (lists if zone else node_lists)[i].append(j)
+        self.blocked = np.zeros((M, M), dtype=bool)
+        for i, j in blocked:
+            self.blocked[i, j] = True
+        self.fly_ptr, self.fly_idx = csr(lists)
+        self.flyn_ptr, self.flyn_idx = csr(node_lists)
+        self.n_block_pairs = len(blocked)
+        self.n_stored_blocks = stored
+
+    def _rho(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Scaled distances ``(d_ij - a_i)/a_j`` of the pairs ``(ii, jj)``."""
+        d = np.linalg.norm(self.centers[ii] - self.centers[jj], axis=-1)
+        return (d - self.radii[ii]) / self.radii[jj]
+
+    def _table_pairs(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Which pairs ``(ii, jj)`` take their block from the coaxial table (``pair_blocks``
+        "table": projected-zone pairs, "table-all": any; equal radii, in the table's range,
+        p >= 2)."""
+        if self.pair_blocks == "direct" or self.p < 2 or not ii.size:
+            return np.zeros(ii.size, dtype=bool)
+        rho = self._rho(ii, jj)
+        same = np.abs(self.radii[ii] - self.radii[jj]) <= 1e-12 * self.radii[jj]
+        zone = (np.ones(ii.size, dtype=bool) if self.pair_blocks == "table-all"
+                else np.array([self._projected(i, j) for i, j in zip(ii, jj)], dtype=bool))
+        return zone & same & (rho >= RHO_MIN) & (rho <= table_range(self.p))
+
+    def _block_bytes(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
+        """Memory of each pair's stored block: assembled (``nv x nv``), or in rotated form
+        (Wigner matrices and coaxial entries) for table pairs with ``"table-all"``."""
+        nv = self.basis.B.shape[1]
+        full = np.full(ii.size, 8.0 * nv * nv)
+        if self.pair_blocks != "table-all" or self.p < 2:
+            return full
+        nw = sum((2 * n + 1) ** 2 for n in range(self.p + 1))
+        rot = 8.0 * (nw + int(order_mask(self.p).sum()))
+        return np.where(self._table_pairs(ii, jj), rot, full)
+
+    def _block_values(self, blocked: list[tuple[int, int]],
+                      fly: set | frozenset = frozenset()) -> np.ndarray | PlanBlocks:
+        """The blocks of the ``blocked`` pairs, ``(len(blocked), nv, nv)``: from the
+        coaxial table where it applies (``pair_blocks`` "table" or "table-all"), else
+        built directly; with "table-all" the table pairs are kept in rotated form
+        (``rotated``, a :class:`.kernels_rotated.RotatedPairs`), those in ``fly`` (beyond
+        the memory budget) as direction and distance only (``fly_pairs``, rotated at
+        every product), and the stack is a :class:`.kernels_rotated.PlanBlocks` that
+        assembles them when indexed."""
+        nv = self.basis.B.shape[1]
+        ii = np.array([i for i, _ in blocked], dtype=np.int64)
+        jj = np.array([j for _, j in blocked], dtype=np.int64)
+        use = self._table_pairs(ii, jj)
+        self.n_table_blocks = int(use.sum())
+        self.rotated = self.fly_pairs = None
+        if not use.any():                                  # every block built directly
+            return self._direct_blocks(blocked)
+        table = coaxial_table(self.p, table_range(self.p))
+        u = self.centers[ii] - self.centers[jj]
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        rho = self._rho(ii, jj)
+        rest = np.nonzero(~use)[0]
+        direct = (self._direct_blocks([blocked[k] for k in rest]) if rest.size
+                  else np.zeros((0, nv, nv)))
+        if self.pair_blocks == "table-all":
+            late = np.array([pair in fly for pair in blocked], dtype=bool)
+            keep, late = np.nonzero(use & ~late)[0], np.nonzero(use & late)[0]
+            self.rotated = RotatedPairs.build(wigner_directions(u[keep], self.p),
+                                              table.values(rho[keep]), order_mask(self.p),
+                                              self._output_map)
+            if late.size:
+                self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
+            self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
+            return PlanBlocks(direct, self.rotated, self.fly_pairs, (rest, keep, late))
+        Dn = wigner_directions(u[use], self.p)
+        vals = table.values(rho[use])
+        E = np.empty((len(blocked), nv, nv))
+        E[use] = rotate_blocks(vals, Dn, degree_slices(self.p), left_matrix=self._output_map,
+                               pattern=order_mask(self.p))
+        E[rest] = direct
+        return E
+
+    @property
+    def _output_map(self) -> np.ndarray:
+        """``A B``: what the native analysis keeps of degree <= p coefficients (the
+        identity but for the pair of degree-p, order-p sine columns the native grid does
+        not tell apart), applied to the rotated table blocks so that they are stated in
+        the same coefficients as the direct build's."""
+        return self.basis.A @ self.basis.B
+
+    def _direct_blocks(self, blocked: list[tuple[int, int]]) -> np.ndarray:
+        """The blocks of the ``blocked`` pairs built directly: one exact-expansion
+        response per pair, on the finer grid projected onto degree p in the projected
+        zone, at the native nodes otherwise (fine-grid quadrature pairs and node
+        sampling)."""
+        p = self.p
+        b = self.basis
+        nv = b.B.shape[1]
+        flat = np.argmax(np.abs(b.to_complex), axis=0)
+        cfac = b.to_complex[flat, np.arange(nv)]
         fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
         to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
@@ -306,24 +477,7 @@ class PairPlan:
                 Ep = np.empty((len(part), 3 * Nq, nv))
                 real_block_columns(resp.reshape(len(part) * Nq, -1, 3), flat, cfac, Ep)
                 E[part] = np.matmul(to_coef[proj], Ep)
-        self.blocks = E
-        self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
-        self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
-        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
-        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
-        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
-        lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
-        node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
-        for i, j in rest:
-            if self.level_of[i, j] == -2:
-                zone = self.near_proj is None or self._projected(i, j)
-                (lists if zone else node_lists)[i].append(j)
-        self.blocked = np.zeros((M, M), dtype=bool)
-        for i, j in blocked:
-            self.blocked[i, j] = True
-        self.fly_ptr, self.fly_idx = csr(lists)
-        self.flyn_ptr, self.flyn_idx = csr(node_lists)
-        self.n_block_pairs = len(blocked)
+        return E
 
     def _projected(self, i: int, j: int) -> bool:
         """Whether pair (i, j) gets the projected near field (the zone ``rho < 2``)."""

@@ -67,6 +67,11 @@ class BimSetup:
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
         Memory budget (MB) of the stored near-field blocks.
+    pair_blocks : {"direct", "table", "table-all"}
+        How the stored blocks are built: every block directly (the reference),
+        projected-zone pairs of equal radii from the coaxial table and rotations
+        (:mod:`.coaxial`, assembled), or every equal-radius pair from the table, kept in
+        rotated form ("table-all", the default; see :meth:`.pairs.PairPlan._build_blocks`).
 
     Raises
     ------
@@ -76,7 +81,7 @@ class BimSetup:
 
     def __init__(self, centers, radii, *, p: int, mu: float, quad_tol: float,
                  far: str = "direct", near_upsample: float = NEAR_UPSAMPLE,
-                 near_block_mb: float = 4096.0) -> None:
+                 near_block_mb: float = 4096.0, pair_blocks: str = "table-all") -> None:
         c, r = check_configuration(centers, radii)
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
@@ -103,7 +108,8 @@ class BimSetup:
         near_grid = sphere_grid(q_near)
         near_proj = None if q_near == self.p else projection_matrix(self.p, q_near)
         self.plan = PairPlan(c, r, Grids(self.p, self.grid, near_grid, near_proj, self.basis),
-                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb)
+                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb,
+                             pair_blocks=pair_blocks)
 
     def _one_sphere(self) -> None:
         """The grid, the one-sphere operators and the target points of every sphere."""

@@ -1,0 +1,193 @@
+"""Near-field blocks kept in rotated form (problems/suspension/bim/kernels_rotated.py) and
+the default ``pair_blocks="table-all"`` of the pair plan."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lcpbench.problems.suspension.bim import kernels_rotated as kr
+from lcpbench.problems.suspension.bim.blocks import StoredBlocks
+from lcpbench.problems.suspension.bim.coaxial import order_mask
+from lcpbench.problems.suspension.bim.kernels_rotated import PlanBlocks
+from lcpbench.problems.suspension.bim.setup import BimSetup
+
+
+def _packed(n_side=3, spacing=2.35, jitter=0.1, seed=5):
+    rng = np.random.default_rng(seed)
+    ax = np.arange(n_side) * spacing
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    c = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    return c + rng.uniform(-jitter / 2, jitter / 2, c.shape)
+
+
+@pytest.fixture(scope="module")
+def plan():
+    """A packed 27-sphere lattice at p = 5 with one larger sphere (its pairs are built
+    directly and kept assembled; the others are table pairs in rotated form)."""
+    r = np.ones(27)
+    r[13] = 1.08
+    return BimSetup(_packed(), r, p=5, mu=1.0, quad_tol=1e-10).plan
+
+
+def _assembled(plan):
+    return np.asarray(plan.blocks[np.arange(plan.n_block_pairs)])
+
+
+def test_default_keeps_table_pairs_in_rotated_form(plan):
+    assert plan.pair_blocks == "table-all"
+    assert isinstance(plan.blocks, PlanBlocks)
+    assert 0 < plan.n_table_blocks < plan.n_block_pairs
+    assert plan.rotated.vals.shape == (plan.n_table_blocks, int(order_mask(5).sum()))
+    nv = plan.blocks.shape[1]
+    dense = plan.n_block_pairs - plan.n_table_blocks
+    # memory per pair: Wigner matrices + coaxial entries, far below an assembled block
+    assert plan.block_bytes == plan.rotated.nbytes + dense * nv * nv * 8
+    assert plan.rotated.nbytes < 0.3 * plan.n_table_blocks * nv * nv * 8
+
+
+def test_lazy_blocks_index_like_an_array(plan):
+    full = _assembled(plan)
+    k = int(plan.rot_pos[3])
+    assert np.array_equal(plan.blocks[k], full[k])
+    idx = np.array([int(plan.dense_pos[0]), k, 0])
+    assert np.array_equal(plan.blocks[idx, :10, :7], full[idx, :10, :7])
+    assert np.array_equal(plan.blocks[2:5], full[2:5])
+    # the assembled rotated blocks are those of pair_blocks="table" where both apply
+    ref = BimSetup(plan.centers, plan.radii, p=5, mu=1.0, quad_tol=1e-10,
+                   pair_blocks="table").plan
+    assert np.array_equal(ref.block_tgt, plan.block_tgt)
+    zone = np.array([plan._projected(i, j) for i, j in zip(plan.block_tgt, plan.block_src)])
+    sel = zone & (plan.radii[plan.block_tgt] == plan.radii[plan.block_src])
+    assert sel.sum() > 10
+    err = np.linalg.norm(full[sel] - ref.blocks[sel], axis=(1, 2))
+    assert (err <= 1e-12 * np.linalg.norm(ref.blocks[sel], axis=(1, 2))).all()
+
+
+def _reference_products(plan, coef, x):
+    A = _assembled(plan)
+    fwd = np.zeros_like(coef)
+    tr = np.zeros_like(coef)
+    for k in range(A.shape[0]):
+        fwd[plan.block_tgt[k]] += A[k] @ coef[plan.block_src[k]]
+        tr[plan.block_src[k]] += A[k].T @ x[plan.block_tgt[k]]
+    return fwd, tr
+
+
+def _rel(a, b):
+    return np.linalg.norm(a - b) / np.linalg.norm(b)
+
+
+def test_stored_blocks_products_match_the_assembled_blocks(plan):
+    rng = np.random.default_rng(0)
+    nv = plan.blocks.shape[1]
+    coef = rng.standard_normal((plan.M, nv))
+    ob = rng.standard_normal((plan.M, 3 * plan.N))
+    x = ob @ plan.block_synth_T
+    fwd, tr = _reference_products(plan, coef, x)
+    near = StoredBlocks(plan)
+    assert _rel(near.apply(coef), fwd @ plan.block_synth) <= 1e-12
+    bar = np.zeros_like(coef)
+    near.add_transpose(ob, bar)
+    assert _rel(bar, tr) <= 1e-12
+    bar2, out = np.zeros_like(coef), np.ones((plan.M, 3 * plan.N))
+    near.apply_both(coef, ob, bar2, out)
+    assert _rel(out - 1.0, fwd @ plan.block_synth) <= 1e-12
+    assert _rel(bar2, tr) <= 1e-12
+    assert near.nbytes == plan.block_bytes
+
+
+@pytest.mark.parametrize("parallel", [True, False])
+def test_rotated_kernels_serial_and_parallel(plan, parallel):
+    """The compiled kernels on the rotated pairs alone, against their assembled blocks."""
+    rot, pos = plan.rotated, plan.rot_pos
+    tgt, src = plan.block_tgt[pos], plan.block_src[pos]
+    A = rot.assemble(np.arange(pos.size))
+    rng = np.random.default_rng(1)
+    nv = A.shape[1]
+    coef, x = rng.standard_normal((2, plan.M, nv))
+    fwd, tr, parts = np.zeros_like(coef), np.zeros_like(coef), np.empty((pos.size, nv))
+    for k in range(pos.size):
+        fwd[tgt[k]] += A[k] @ coef[src[k]]
+        parts[k] = A[k].T @ x[tgt[k]]
+        tr[src[k]] += parts[k]
+    tptr = np.searchsorted(tgt, np.arange(plan.M + 1)).astype(np.int64)
+    order = np.argsort(src, kind="stable").astype(np.int64)
+    sptr = np.searchsorted(src[order], np.arange(plan.M + 1)).astype(np.int64)
+    sfx = "" if parallel else "_serial"
+    acc = np.zeros_like(coef)
+    getattr(kr, "rotated_forward" + sfx)(rot.form, tptr, src, coef, acc)
+    assert _rel(acc, fwd) <= 1e-12
+    bar = np.zeros_like(coef)
+    getattr(kr, "rotated_transpose" + sfx)(rot.form, sptr, order, tgt, x, bar)
+    assert _rel(bar, tr) <= 1e-12
+    acc2, part = np.zeros_like(coef), np.full((pos.size, nv), np.nan)
+    getattr(kr, "rotated_both" + sfx)(rot.form, tptr, src, coef, acc2, x, part)
+    assert _rel(acc2, fwd) <= 1e-12
+    assert _rel(part, parts) <= 1e-12
+
+
+def test_budget_counts_blocks_in_rotated_form():
+    """A budget that holds a few assembled blocks holds about six times as many in
+    rotated form (p = 5)."""
+    c = _packed(2)
+    nv = 3 * 36 - 2
+    mb = 20 * nv * nv * 8 / 2 ** 20
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        direct = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=mb,
+                          pair_blocks="direct").plan
+    assert direct.n_block_pairs == 20
+    rotated = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=mb).plan
+    assert rotated.n_block_pairs > 40
+    assert rotated.block_bytes <= mb * 2 ** 20
+
+
+def test_pairs_beyond_the_budget_are_the_same_table_blocks_rotated_on_the_fly():
+    """Over budget, table pairs keep their (table) blocks, rotated at every product, not
+    a different discretisation: products equal those of the full budget."""
+    c = _packed(2)
+    full = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10).plan
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        small = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=0.2).plan
+    assert 0 < small.n_stored_blocks < small.n_block_pairs == full.n_block_pairs
+    assert small.fly_idx.size == 0 and small.flyn_idx.size == 0
+    assert small.fly_pairs.rho.size == small.n_block_pairs - small.n_stored_blocks
+    assert np.array_equal(small.blocks[:, :9, :9], full.blocks[:, :9, :9])
+    rng = np.random.default_rng(2)
+    coef = rng.standard_normal((full.M, full.blocks.shape[1]))
+    ob = rng.standard_normal((full.M, 3 * full.N))
+    a, b = StoredBlocks(full), StoredBlocks(small)
+    assert _rel(b.apply(coef), a.apply(coef)) <= 1e-13
+    bar_a, bar_b = np.zeros_like(coef), np.zeros_like(coef)
+    a.add_transpose(ob, bar_a)
+    b.add_transpose(ob, bar_b)
+    assert _rel(bar_b, bar_a) <= 1e-13
+    out_b, both_b = np.zeros_like(ob), np.zeros_like(coef)
+    b.apply_both(coef, ob, both_b, out_b)
+    assert _rel(out_b, a.apply(coef)) <= 1e-13 and _rel(both_b, bar_a) <= 1e-13
+
+
+def test_mobility_with_no_block_budget_equals_the_stored_table_blocks():
+    from lcpbench.problems.suspension.bim.operator import BimMobility
+
+    c = _packed(2)
+    ft = np.random.default_rng(4).standard_normal(6 * len(c))
+    A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0)
+    assert B.plan.n_stored_blocks == 0 and B.plan.n_block_pairs == A.plan.n_block_pairs
+    ua, ub = A @ ft, B @ ft
+    assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
+
+
+@pytest.mark.parametrize("name", ["forward", "transpose", "both"])
+def test_serial_and_parallel_builds_have_their_own_cache_entries(name):
+    """numba caches a compiled function on disk under its qualified name and signature,
+    whatever ``parallel`` says: the two builds must differ in name, or the serial build
+    can be loaded for the parallel one."""
+    par, ser = getattr(kr, f"rotated_{name}"), getattr(kr, f"rotated_{name}_serial")
+    assert par.targetoptions.get("parallel") and not ser.targetoptions.get("parallel")
+    assert par.py_func.__qualname__ != ser.py_func.__qualname__
+    files = par._cache._cache_file, ser._cache._cache_file
+    assert files[0]._cache_path == files[1]._cache_path                   # same folder
+    assert files[0]._index_name != files[1]._index_name                   # own entries
