@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lcpbench.problems.suspension.bim import kernels as kn
+from lcpbench.problems.suspension.bim import kernels_adjoint as ka
 from lcpbench.problems.suspension.bim import kernels_rotated as kr
 from lcpbench.problems.suspension.bim.blocks import StoredBlocks
 from lcpbench.problems.suspension.bim.coaxial import order_mask
@@ -180,13 +182,24 @@ def test_mobility_with_no_block_budget_equals_the_stored_table_blocks():
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
 
 
-@pytest.mark.parametrize("name", ["forward", "transpose", "both"])
-def test_serial_and_parallel_builds_have_their_own_cache_entries(name):
+_BUILDS = [(kr, f"rotated_{n}", f"rotated_{n}_serial") for n in ("forward", "transpose", "both")]
+_BUILDS += [(kn, n, n + "_serial") for n in ("apply_blocks", "apply_lowrank", "synthesize_forces",
+                                            "direct_traction_ranges")]
+_BUILDS += [(kn, "direct_traction_ranges", "direct_traction_skip")]
+_BUILDS += [(ka, n, n + "_serial") for n in ("direct_traction_adjoint", "apply_blocks_adjoint",
+                                            "apply_blocks_both")]
+_BUILDS += [(ka, "direct_traction_adjoint", "direct_traction_adjoint_skip")]
+
+
+@pytest.mark.parametrize("module,par_name,ser_name", _BUILDS,
+                         ids=[b[2] for b in _BUILDS])
+def test_serial_and_parallel_builds_have_their_own_cache_entries(module, par_name, ser_name):
     """numba caches a compiled function on disk under its qualified name and signature,
-    whatever ``parallel`` says: the two builds must differ in name, or the serial build
-    can be loaded for the parallel one."""
-    par, ser = getattr(kr, f"rotated_{name}"), getattr(kr, f"rotated_{name}_serial")
-    assert par.targetoptions.get("parallel") and not ser.targetoptions.get("parallel")
+    whatever ``parallel`` and ``fastmath`` say: two builds of one kernel must differ in
+    name, or either can be loaded for the other (the parallel one then runs on one
+    thread)."""
+    par, ser = getattr(module, par_name), getattr(module, ser_name)
+    assert par.targetoptions != ser.targetoptions
     assert par.py_func.__qualname__ != ser.py_func.__qualname__
     files = par._cache._cache_file, ser._cache._cache_file
     assert files[0]._cache_path == files[1]._cache_path                   # same folder

@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from .harmonics import derivatives, field_buffers, solid_harmonics
+from .jit import variant
 from .kernels import point_force_weight
 
 __all__ = ["unit_field_adjoint", "traction_expansion_adjoint", "center_readout_adjoint",
@@ -259,9 +260,9 @@ def _apply_blocks_both_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray,
 
 
 direct_traction_adjoint = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_adjoint_impl)
-direct_traction_adjoint_serial = njit(fastmath=True, cache=True)(_direct_traction_adjoint_impl)
-direct_traction_adjoint_skip = njit(parallel=True, fastmath=False, cache=True)(_direct_traction_adjoint_impl)
+direct_traction_adjoint_serial = njit(fastmath=True, cache=True)(variant(_direct_traction_adjoint_impl, "serial"))
+direct_traction_adjoint_skip = njit(parallel=True, fastmath=False, cache=True)(variant(_direct_traction_adjoint_impl, "exact"))
 apply_blocks_adjoint = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_adjoint_impl)
-apply_blocks_adjoint_serial = njit(fastmath=True, cache=True)(_apply_blocks_adjoint_impl)
+apply_blocks_adjoint_serial = njit(fastmath=True, cache=True)(variant(_apply_blocks_adjoint_impl, "serial"))
 apply_blocks_both = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_both_impl)
-apply_blocks_both_serial = njit(fastmath=True, cache=True)(_apply_blocks_both_impl)
+apply_blocks_both_serial = njit(fastmath=True, cache=True)(variant(_apply_blocks_both_impl, "serial"))

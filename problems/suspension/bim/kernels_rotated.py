@@ -24,13 +24,13 @@ source by the caller).
 
 from __future__ import annotations
 
-import types
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from .coaxial import CoaxialTable, order_mask
+from .jit import variant
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 
 __all__ = ["RotatedPairs", "FlyPairs", "PlanBlocks", "rotated_forward", "rotated_forward_serial", "rotated_transpose",
@@ -173,24 +173,12 @@ def _both(form, tptr, src, coef, acc, x, part):
             _pair_transpose(form, k, x[i], part[k], work)
 
 
-def _serial_copy(fn):
-    """``fn`` under another qualified name: numba's on-disk cache is keyed by the function's
-    qualified name and signature, not by ``parallel``, so a serial and a parallel build of
-    one function would share (and overwrite) one cache entry and either could be loaded
-    for both (measured: the parallel build then ran on one thread)."""
-    copy = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + "_serial",
-                              fn.__defaults__, fn.__closure__)
-    copy.__qualname__ = fn.__qualname__ + "_serial"
-    copy.__doc__ = fn.__doc__
-    return copy
-
-
 rotated_forward = njit(parallel=True, fastmath=True, cache=True)(_forward)
-rotated_forward_serial = njit(fastmath=True, cache=True)(_serial_copy(_forward))
+rotated_forward_serial = njit(fastmath=True, cache=True)(variant(_forward, "serial"))
 rotated_transpose = njit(parallel=True, fastmath=True, cache=True)(_transpose)
-rotated_transpose_serial = njit(fastmath=True, cache=True)(_serial_copy(_transpose))
+rotated_transpose_serial = njit(fastmath=True, cache=True)(variant(_transpose, "serial"))
 rotated_both = njit(parallel=True, fastmath=True, cache=True)(_both)
-rotated_both_serial = njit(fastmath=True, cache=True)(_serial_copy(_both))
+rotated_both_serial = njit(fastmath=True, cache=True)(variant(_both, "serial"))
 
 
 def _order_major(pattern: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
