@@ -204,3 +204,61 @@ def test_serial_and_parallel_builds_have_their_own_cache_entries(module, par_nam
     files = par._cache._cache_file, ser._cache._cache_file
     assert files[0]._cache_path == files[1]._cache_path                   # same folder
     assert files[0]._index_name != files[1]._index_name                   # own entries
+
+
+def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree():
+    """The distance-split low of a rotated-form high truncates each table pair in rotated
+    form (degree <= q of its rotation and coaxial entries), never assembling it: its
+    blocks are the leading parts of the high's, and its products, forward and
+    transposed, equal those of the split built on assembled blocks; pairs the high
+    rotates at each product (over its budget) are truncated the same way."""
+    import copy
+
+    from lcpbench.problems.suspension.bim.split import SplitBlocks
+
+    def assembled_copy(plan):
+        """The plan with every block assembled (the same values, stored dense)."""
+        out = copy.copy(plan)
+        out.blocks = plan.blocks[np.arange(len(plan.blocks))]
+        out.rotated = out.fly_pairs = None
+        return out
+
+    c = _packed(2)
+    radii = np.ones(len(c))
+    radii[3] = 0.95                              # its pairs are built directly, kept dense
+    full = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10).plan
+    full_ref = assembled_copy(full)
+    with pytest.warns(RuntimeWarning, match="near_block_mb"):
+        small = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=0.2).plan
+    mixed = BimSetup(c, radii, p=5, mu=1.0, quad_tol=1e-10).plan
+    mixed_ref = assembled_copy(mixed)
+    kw = dict(far_degree=3, near_gap=0.5, decay=0.5, rank_tol=None)
+    rng = np.random.default_rng(5)
+    coef = rng.standard_normal((full.M, full.blocks.shape[1]))
+    ob = rng.standard_normal((full.M, 3 * full.N))
+    for plan, assembled, n_dense in ((full, full_ref, 0), (small, full_ref, 0),
+                                     (mixed, mixed_ref, 2)):
+        ref = SplitBlocks(assembled, **kw)
+        assert all(g.rotated is None for g in ref.groups)
+        bar_ref = np.zeros_like(coef)
+        ref.add_transpose(ob, bar_ref)
+        split = SplitBlocks(plan, **kw)
+        rot = [g for g in split.groups if g.rotated is not None]
+        # per degree (-1: full) a group in rotated form, and with unequal radii one of
+        # the directly built (dense) blocks
+        assert len(rot) == len(ref.groups) >= 2
+        assert len(split.groups) - len(rot) == n_dense
+        for g in rot:
+            k = np.nonzero(np.isin(plan.block_tgt * plan.M + plan.block_src,
+                                   g.tgt * plan.M + g.src))[0]
+            n = g.sel.size
+            blocks = g.rotated.assemble(np.arange(k.size))
+            assert blocks.shape == (k.size, n, n)
+            assert _rel(blocks, assembled.blocks[k, :n, :n]) <= 1e-13
+        assert split.n_truncated_pairs == ref.n_truncated_pairs > 0
+        # fewer multiply-adds than the same blocks truncated assembled
+        assert sum(g.work for g in split.groups) < sum(g.work for g in ref.groups)
+        assert _rel(split.apply(coef), ref.apply(coef)) <= 1e-13
+        bar = np.zeros_like(coef)
+        split.add_transpose(ob, bar)
+        assert _rel(bar, bar_ref) <= 1e-13

@@ -287,6 +287,55 @@ class RotatedPairs:
         rot = int(sum(k * (2 * n + 1) ** 2 for n, k in enumerate(self.layout[:, 1])))
         return int(self.vals.shape[0] * (2 * rot + self.vals.shape[1] + self.dev.size * nv))
 
+    def truncated(self, sel: np.ndarray, q: int) -> RotatedPairs:
+        """The rotated form of the pairs ``sel`` restricted to the coefficients of degree
+        <= ``q`` on both sides: the leading ``nv(q) x nv(q)`` part of each assembled
+        block (``q < 0`` or ``q >= p``: the pairs' blocks whole).
+
+        The rotation is block diagonal by degree and the coefficients are ordered by
+        degree, so the leading part of ``L D E D^T`` is ``L_q D_q E_q D_q^T`` with
+        ``D_q`` the Wigner matrices of degree <= q (a prefix of each pair's ``D`` row),
+        ``E_q`` the coaxial entries between coefficients of degree <= q, and ``L_q`` the
+        output map's leading part, exact as long as no output-map row of degree <= q
+        reads a coefficient of higher degree (the map differs from the identity only at
+        degree p).
+
+        Raises
+        ------
+        ValueError
+            The output map couples a coefficient of degree <= q to a higher one.
+        """
+        sel = np.asarray(sel, dtype=np.int64)
+        nv = self.ptr.size - 1
+        if q < 0 or q >= self.p:
+            return RotatedPairs(self.p, np.ascontiguousarray(self.D[sel]),
+                                np.ascontiguousarray(self.vals[sel]), self.ptr, self.idx,
+                                self.layout, self.dev, self.L, self.perm, self.groups,
+                                self.gather)
+        nq = int(self.layout[q + 1, 0])
+        left = np.eye(nv)
+        left[self.dev] = self.L
+        if np.abs(left[:nq, nq:]).max(initial=0.0) > 0:
+            raise ValueError(f"the output map couples coefficients of degree <= {q} to "
+                             "higher ones: the truncated blocks would not be the leading "
+                             "part of the full ones")
+        rows = np.repeat(np.arange(nv), np.diff(self.ptr))
+        keep = (rows < nq) & (self.idx < nq)
+        pattern = np.zeros((nq, nq), dtype=bool)
+        pattern[rows[keep], self.idx[keep]] = True
+        entries = np.empty((sel.size, self.vals.shape[1]))      # row-major on the pattern
+        entries[:, self.gather] = self.vals[sel]
+        perm, groups, gather = _order_major(pattern)
+        nw = int(self.layout[q, 2]) + (2 * q + 1) ** 2
+        left_q = left[:nq, :nq]
+        dev = np.nonzero(np.abs(left_q - np.eye(nq)).max(axis=1) > 1e-12)[0]
+        return RotatedPairs(q, np.ascontiguousarray(self.D[sel, :nw]),
+                            np.ascontiguousarray(entries[:, keep][:, gather]),
+                            np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
+                            np.nonzero(pattern)[1].astype(np.int64),
+                            np.ascontiguousarray(self.layout[:q + 1]), dev.astype(np.int64),
+                            np.ascontiguousarray(left_q[dev]), perm, groups, gather)
+
     def assemble(self, sel: np.ndarray) -> np.ndarray:
         """The assembled blocks ``L D E D^T`` of the pairs ``sel``, ``(len(sel), nv, nv)``."""
         sel = np.asarray(sel, dtype=np.int64)
@@ -301,8 +350,9 @@ class RotatedPairs:
         left[self.dev] = self.L
         vals = np.empty((sel.size, self.vals.shape[1]))
         vals[:, self.gather] = self.vals[sel]
-        return rotate_blocks(vals, Dn, degree_slices(self.p), left_matrix=left,
-                             pattern=pattern)
+        slices = [lo + np.arange(kinds * (2 * n + 1), dtype=np.int64).reshape(kinds, -1)
+                  for n, (lo, kinds, _) in enumerate(self.layout)]
+        return rotate_blocks(vals, Dn, slices, left_matrix=left, pattern=pattern)
 
 
 @dataclass(frozen=True)
@@ -402,3 +452,42 @@ class PlanBlocks:
                 out[mine] = assemble(at[mine])
         out = out[0] if scalar else out
         return out[(slice(None),) * (0 if scalar else 1) + rest] if rest else out
+
+    def kinds(self, sel: np.ndarray) -> np.ndarray:
+        """How each block of ``sel`` is kept: 0 dense, 1 in rotated form, 2 computed at
+        each product."""
+        return self._kind[np.asarray(sel, dtype=np.int64)]
+
+    def truncated_form(self, sel: np.ndarray, q: int) -> RotatedPairs:
+        """The rotated form, restricted to degree <= ``q`` (:meth:`RotatedPairs.truncated`),
+        of the blocks ``sel``, every one kept in rotated form or computed at each product
+        (those are rotated here once, a chunk at a time).
+
+        Raises
+        ------
+        ValueError
+            A block of ``sel`` is kept dense.
+        """
+        sel = np.asarray(sel, dtype=np.int64)
+        kind, at = self._kind[sel], self._at[sel]
+        if (kind == 0).any():
+            raise ValueError("blocks kept dense have no rotated form; take them from the "
+                             "stack (blocks[sel])")
+        parts: list[tuple[np.ndarray, RotatedPairs]] = []
+        mine = np.nonzero(kind == 1)[0]
+        if mine.size or not sel.size:
+            parts.append((mine, self.rotated.truncated(at[mine], q)))
+        fly = np.nonzero(kind == 2)[0]
+        step = FlyPairs.chunk
+        for k0 in range(0, fly.size, step):
+            rows = fly[k0:k0 + step]
+            parts.append((rows, self.fly.rotated(at[rows]).truncated(np.arange(rows.size), q)))
+        if len(parts) == 1:
+            return parts[0][1]
+        first = parts[0][1]
+        D = np.empty((sel.size, first.D.shape[1]))
+        vals = np.empty((sel.size, first.vals.shape[1]))
+        for rows, part in parts:
+            D[rows], vals[rows] = part.D, part.vals
+        return RotatedPairs(first.p, D, vals, first.ptr, first.idx, first.layout, first.dev,
+                            first.L, first.perm, first.groups, first.gather)

@@ -10,7 +10,8 @@ fidelity's own discretisation near contact and makes the rest cheap:
 * every other pair acts only through the source density's vector spherical harmonics of
   degree <= q, and its traction on the target is projected onto degree <= q: a
   ``nv(q) x nv(q)`` block instead of ``nv(p) x nv(p)``, the stored block's rows and
-  columns of degree <= q.  q is
+  columns of degree <= q (for the pairs the high keeps in rotated form, the coaxial
+  table's pairs, its rotation and coaxial entries of degree <= q: never assembled).  q is
   ``far_degree`` for the closest of these pairs and falls gently with distance: a pair
   at centre distance R (in source radii) gets the least q with
   ``q + 1 >= (far_degree + 1) (ln R0 / ln R)^decay``, R0 the distance of a pair at
@@ -53,6 +54,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..geometry import check_tolerance
+from .blocks import StoredBlocks
 from .kernels import (
     PARALLEL_WORK,
     apply_blocks,
@@ -62,6 +64,14 @@ from .kernels import (
     dense_rows,
 )
 from .kernels_adjoint import apply_blocks_adjoint, apply_blocks_adjoint_serial
+from .kernels_rotated import (
+    PlanBlocks,
+    RotatedPairs,
+    rotated_forward,
+    rotated_forward_serial,
+    rotated_transpose,
+    rotated_transpose_serial,
+)
 from .operator import BimMobility
 from .pairs import PairPlan
 
@@ -84,7 +94,9 @@ class _Group(NamedTuple):
     ``sel`` is then every coefficient.  ``ptr`` and ``src`` give the blocks by target
     sphere (``fwd`` is their order for :func:`kernels.apply_lowrank`), ``order``,
     ``src_ptr`` and ``tgt`` by source sphere (for the transpose); ``synth`` synthesises
-    ``sel`` onto the grid and ``synth_T`` is its transpose.
+    ``sel`` onto the grid and ``synth_T`` is its transpose.  Blocks the high keeps in
+    rotated form are kept so here too, truncated (``rotated``; ``blocks`` and ``factors``
+    None).
     """
 
     blocks: np.ndarray | None
@@ -98,10 +110,13 @@ class _Group(NamedTuple):
     order: np.ndarray
     src_ptr: np.ndarray
     tgt: np.ndarray
+    rotated: RotatedPairs | None = None
 
     @property
     def work(self) -> int:
         """Multiply-adds of one product with these blocks."""
+        if self.rotated is not None:
+            return self.rotated.work
         if self.blocks is not None:
             return int(self.blocks.size)
         return int(2 * self.factors[0].size)
@@ -115,7 +130,10 @@ class _Group(NamedTuple):
         """``acc[i] = sum_k E_k coef[src[k], sel]`` over the blocks with target i, (M, |sel|)."""
         acc = np.zeros((M, self.sel.size))
         c = self._coef(np.ascontiguousarray(coef))
-        if self.blocks is not None:
+        if self.rotated is not None:
+            fn = rotated_forward if self.work > PARALLEL_WORK else rotated_forward_serial
+            fn(self.rotated.form, self.ptr, self.src, c, acc)
+        elif self.blocks is not None:
             fn = apply_blocks if self.work > PARALLEL_WORK else apply_blocks_serial
             fn(self.blocks, self.ptr, self.src, c, acc)
         else:
@@ -128,7 +146,10 @@ class _Group(NamedTuple):
         """The transpose of :meth:`apply`: ``part[j] = sum_k E_k' acc_bar[tgt[k]]`` over the
         blocks with source j, (M, |sel|)."""
         part = np.zeros((M, self.sel.size))
-        if self.blocks is not None:
+        if self.rotated is not None:
+            fn = rotated_transpose if self.work > PARALLEL_WORK else rotated_transpose_serial
+            fn(self.rotated.form, self.src_ptr, self.order, self.tgt, acc_bar, part)
+        elif self.blocks is not None:
             fn = (apply_blocks_adjoint if self.work > PARALLEL_WORK
                   else apply_blocks_adjoint_serial)
             fn(self.blocks, self.src_ptr, self.order, self.tgt, acc_bar, part)
@@ -199,18 +220,31 @@ class SplitBlocks:
         self.n_full_pairs = int((degree < 0).sum())
         self.n_truncated_pairs = int(far.sum())
         self.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
-        self.block_work = sum(g.work for g in self.groups) / max(plan.blocks.size, 1)
+        self.block_work = (sum(g.work for g in self.groups)
+                           / max(StoredBlocks(plan).work, 1))
 
     def _dense_groups(self, plan: PairPlan, degree: np.ndarray) -> None:
-        """One group of dense blocks per truncation degree (-1: the full near blocks)."""
+        """Per truncation degree (-1: the full near blocks) one group of the blocks the
+        high keeps dense and one of those it keeps in rotated form (or rotates at each
+        product), truncated in that form (:meth:`.kernels_rotated.RotatedPairs.truncated`:
+        never assembled)."""
         basis = plan.basis
         self.groups = []
+        stack = plan.blocks
         for q in np.unique(degree):
             idx = np.nonzero(degree == q)[0]                     # still sorted by target
+            n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
+            if isinstance(stack, PlanBlocks):
+                rot = stack.kinds(idx) != 0
+                if rot.any():
+                    self.groups.append(_group(None, None, idx[rot], plan, n_q,
+                                              rotated=stack.truncated_form(idx[rot], q)))
+                idx = idx[~rot]
+                if not idx.size:
+                    continue
             # the stored blocks are in coefficients on both sides (pairs.py): a near pair
             # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
             # the coefficients are ordered by degree)
-            n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
             if q < 0:
                 blocks = np.ascontiguousarray(plan.blocks[idx])
             else:
@@ -324,7 +358,7 @@ def split_mobility(high: BimMobility, far_degree: int, eps_gmres: float,
 
 
 def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
-           plan: PairPlan, n_coef: int) -> _Group:
+           plan: PairPlan, n_coef: int, rotated: RotatedPairs | None = None) -> _Group:
     """The :class:`_Group` of the pairs ``idx`` (sorted by target) of the high's plan, acting
     on the first ``n_coef`` coefficients (their synthesis: the leading rows of the plan's
     ``block_synth``, a view when they are all of them)."""
@@ -336,7 +370,8 @@ def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
     synth = np.ascontiguousarray(plan.block_synth[:n_coef])
     synth_T = np.ascontiguousarray(plan.block_synth_T[:, :n_coef])
     return _Group(blocks, factors, ptr, s, np.arange(n_coef), synth, synth_T,
-                  np.arange(idx.size, dtype=np.int64), order, src_ptr, np.ascontiguousarray(t))
+                  np.arange(idx.size, dtype=np.int64), order, src_ptr, np.ascontiguousarray(t),
+                  rotated)
 
 
 def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
