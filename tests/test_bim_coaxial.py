@@ -85,6 +85,16 @@ def test_table_interpolates_the_coaxial_block():
     assert err.max() <= 1e-10
     with pytest.raises(ValueError, match="range"):
         table.blocks([0.9])
+    # entries asked for in another order are written in it: the same numbers, permuted
+    # (pairs in any order, several per panel, some alone in theirs)
+    nnz = table.coefs.shape[2]
+    cols = np.random.default_rng(1).permutation(nnz)
+    mixed = np.concatenate([rho[::-1], rho[:3]])
+    for r in (mixed, np.sort(mixed)):
+        want = table.values(r)[:, cols]
+        assert np.abs(table.values(r, columns=cols) - want).max() <= 1e-14 * np.abs(want).max()
+    with pytest.raises(ValueError, match="permutation"):
+        table.values(rho, columns=np.zeros(nnz, dtype=int))
 
 
 def test_setup_takes_equal_pairs_from_the_table_and_others_directly():

@@ -33,7 +33,7 @@ import tempfile
 import time
 import warnings
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
@@ -182,6 +182,7 @@ class CoaxialTable:
     p: int
     edges: np.ndarray
     coefs: np.ndarray
+    _ordered: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def rho_max(self) -> float:
@@ -198,21 +199,42 @@ class CoaxialTable:
         rho = np.asarray(rho, dtype=float)
         return (rho >= self.edges[0]) & (rho <= self.edges[-1])
 
-    def values(self, rho: np.ndarray) -> np.ndarray:
+    def values(self, rho: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
         """Interpolated equal-order entries ``(len(rho), nnz)`` of the coaxial blocks, in
-        the row-major order of ``order_mask(p)`` (``rho`` in the range)."""
+        the row-major order of ``order_mask(p)`` (``rho`` in the range), or with
+        ``columns`` (a permutation of the entries) the entries ``columns``, in that order:
+        written so directly, from coefficients permuted once per table and kept, so that
+        no copy of the ``(len(rho), nnz)`` result is made to reorder it."""
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
         if not self.covers(rho).all():
             raise ValueError(f"rho outside the table's range [{self.edges[0]}, {self.rho_max}]")
+        coefs = self.coefs if columns is None else self._permuted(columns)
         k = np.clip(np.searchsorted(self.edges, rho, side="right") - 1, 0, self.edges.size - 2)
-        out = np.empty((rho.size, self.coefs.shape[2]))
-        for panel in np.unique(k):                       # one product per panel
-            sel = np.nonzero(k == panel)[0]
+        order = np.argsort(k, kind="stable")
+        bounds = np.searchsorted(k[order], np.arange(self.edges.size))
+        out = np.empty((rho.size, coefs.shape[2]))
+        for panel in range(self.edges.size - 1):          # one product per panel
+            sel = order[bounds[panel]:bounds[panel + 1]]
+            if not sel.size:
+                continue
             a, b = self.edges[panel], self.edges[panel + 1]
             T = np.polynomial.chebyshev.chebvander((2 * rho[sel] - a - b) / (b - a),
-                                                   self.coefs.shape[1] - 1)
-            out[sel] = T @ self.coefs[panel]
+                                                   coefs.shape[1] - 1)
+            if sel.size == sel[-1] - sel[0] + 1:            # consecutive rows: in place
+                np.matmul(T, coefs[panel], out=out[sel[0]:sel[-1] + 1])
+            else:
+                out[sel] = T @ coefs[panel]
         return out
+
+    def _permuted(self, columns: np.ndarray) -> np.ndarray:
+        """The coefficients with the entries ``columns`` (a permutation), kept per table."""
+        columns = np.asarray(columns, dtype=np.int64)
+        key = columns.tobytes()
+        if key not in self._ordered:
+            if np.sort(columns).tolist() != list(range(self.coefs.shape[2])):
+                raise ValueError("columns must be a permutation of the table's entries")
+            self._ordered[key] = np.ascontiguousarray(self.coefs[:, :, columns])
+        return self._ordered[key]
 
     def blocks(self, rho: np.ndarray) -> np.ndarray:
         """Interpolated coaxial blocks ``(len(rho), nv, nv)`` (``rho`` in the range)."""

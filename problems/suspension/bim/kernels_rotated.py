@@ -248,11 +248,22 @@ class RotatedPairs:
     gather: np.ndarray
 
     @classmethod
+    def from_table(cls, Dn: list[np.ndarray], table: CoaxialTable, rho: np.ndarray,
+                   left_matrix: np.ndarray) -> RotatedPairs:
+        """:meth:`build` for the coaxial blocks of ``table`` at the scaled distances
+        ``rho``, their entries interpolated straight into the kernels' order."""
+        pattern = order_mask(table.p)
+        gather = _order_major(pattern)[2]
+        return cls.build(Dn, table.values(rho, columns=gather), pattern, left_matrix,
+                         ordered=True)
+
+    @classmethod
     def build(cls, Dn: list[np.ndarray], vals: np.ndarray, pattern: np.ndarray,
-              left_matrix: np.ndarray) -> RotatedPairs:
+              left_matrix: np.ndarray, ordered: bool = False) -> RotatedPairs:
         """The rotated form of the blocks ``left_matrix D E D^T``: ``Dn[n]`` (K, 2n+1,
         2n+1) the Wigner matrices per degree, ``vals`` (K, nnz) the entries of the coaxial
-        blocks on the bool ``pattern`` (nv, nv), row-major."""
+        blocks on the bool ``pattern`` (nv, nv), row-major (``ordered``: already in the
+        order-major order of :attr:`vals`, kept without a copy)."""
         p = len(Dn) - 1
         K = vals.shape[0]
         layout = np.empty((p + 1, 3), dtype=np.int64)
@@ -264,8 +275,9 @@ class RotatedPairs:
         nv = pattern.shape[0]
         dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
         perm, groups, gather = _order_major(pattern)
+        vals = np.asarray(vals, dtype=float)
         return cls(p, np.ascontiguousarray(D),
-                   np.ascontiguousarray(np.asarray(vals, dtype=float)[:, gather]),
+                   np.ascontiguousarray(vals if ordered else vals[:, gather]),
                    np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
                    np.nonzero(pattern)[1].astype(np.int64), layout, dev.astype(np.int64),
                    np.ascontiguousarray(left_matrix[dev]), perm, groups, gather)
@@ -384,9 +396,8 @@ class FlyPairs:
     def rotated(self, sel) -> RotatedPairs:
         """The rotated form of the pairs ``sel`` (an index array or a slice)."""
         p = self.table.p
-        return RotatedPairs.build(wigner_directions(self.u[sel], p),
-                                  self.table.values(self.rho[sel]), order_mask(p),
-                                  self.left_matrix)
+        return RotatedPairs.from_table(wigner_directions(self.u[sel], p), self.table,
+                                       self.rho[sel], self.left_matrix)
 
     def chunks(self):
         """Slices of at most :attr:`chunk` consecutive pairs covering them all."""

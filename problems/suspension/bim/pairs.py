@@ -418,9 +418,8 @@ class PairPlan:
         if self.pair_blocks == "table-all":
             late = np.array([pair in fly for pair in blocked], dtype=bool)
             keep, late = np.nonzero(use & ~late)[0], np.nonzero(use & late)[0]
-            self.rotated = RotatedPairs.build(wigner_directions(u[keep], self.p),
-                                              table.values(rho[keep]), order_mask(self.p),
-                                              self._output_map)
+            self.rotated = RotatedPairs.from_table(wigner_directions(u[keep], self.p), table,
+                                                   rho[keep], self._output_map)
             if late.size:
                 self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
             self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
