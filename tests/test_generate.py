@@ -217,3 +217,37 @@ def test_a_checkpoint_that_cannot_serve_is_set_aside_with_a_reason(tmp_path, cap
     last = generate(SCENE, "20-22", other, lows=["self"], tol=1e-6, progress=False)
     assert last.simulated == 23 and last.written == [instance_id(22)]
     assert checkpoint_file(other).name in capsys.readouterr().err
+
+
+def test_implicit_matrices_are_formed_column_by_column_under_a_bar(monkeypatch, capsys):
+    """An implicit operator is formed from its columns a few at a time (the same matrix
+    as one product with the identity), with a progress bar in columns."""
+    from lcpbench.core.operator import Operator
+    from lcpbench.workflows import generate as gen
+
+    B = np.random.default_rng(3).standard_normal((11, 11))
+    calls = []
+
+    def mv(v):
+        calls.append(v.copy())
+        return B @ v
+
+    op = Operator(_matvec_operator(mv, 11), cost=1.0)
+    monkeypatch.setattr(gen, "_PROGRESS_DELAY", 0.0)
+    A, asym = gen._dense_sym(op, "step 3: high", progress=True)
+    np.testing.assert_allclose(A, 0.5 * (B + B.T), rtol=1e-14)
+    assert asym == pytest.approx(np.max(np.abs(B - B.T)) / np.max(np.abs(B)))
+    # every column of the identity, in order, once
+    assert len(calls) == 11
+    assert all(np.array_equal(np.ravel(v), np.eye(11)[:, j]) for j, v in enumerate(calls))
+    err = capsys.readouterr().err
+    assert "step 3: high" in err and "11/11" in err and "column" in err
+    # quiet: no bar
+    gen._dense_sym(op, "step 3: high", progress=False)
+    assert "step 3" not in capsys.readouterr().err
+
+
+def _matvec_operator(mv, n):
+    from scipy.sparse.linalg import LinearOperator
+
+    return LinearOperator((n, n), matvec=mv, dtype=np.float64)

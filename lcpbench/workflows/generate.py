@@ -61,12 +61,13 @@ from pathlib import Path
 from typing import Optional, Union
 
 import numpy as np
+import scipy.sparse as sp
 
 from lcpbench import __version__
 from lcpbench.core.context import Budget
 from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import Operator, dense_uncounted, measure_cost
+from lcpbench.core.operator import Operator, apply_uncounted, dense_uncounted, measure_cost
 from lcpbench.core.ranges import parse_ranges
 from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
@@ -212,9 +213,34 @@ def _versions() -> dict:
             "numpy": np.__version__, "scipy": scipy.__version__, "h5py": h5py.__version__}
 
 
-def _dense_sym(op: Operator) -> tuple[np.ndarray, float]:
-    """The operator as a symmetrised dense matrix and its relative asymmetry."""
-    A = np.asarray(dense_uncounted(op), dtype=np.float64)
+#: Columns of an implicit operator formed per progress update of :func:`_dense_sym`.
+_COLUMNS_PER_UPDATE = 4
+#: Seconds of forming before its progress bar shows.
+_PROGRESS_DELAY = 2.0
+
+
+def _dense_sym(op: Operator, desc: str = "", progress: bool = False
+               ) -> tuple[np.ndarray, float]:
+    """The operator as a symmetrised dense matrix and its relative asymmetry.
+
+    An implicit operator is applied to the columns of the identity in order, a few at a
+    time, under a progress bar (shown once forming has taken 2 s: at 125 spheres and
+    p = 8 one matrix is minutes of mobility solves)."""
+    impl = op._impl
+    if isinstance(impl, np.ndarray) or sp.issparse(impl):
+        A = np.asarray(dense_uncounted(op), dtype=np.float64)
+    else:
+        from tqdm.auto import tqdm
+
+        n = op.shape[1]
+        A = np.empty((n, n))
+        eye = np.eye(n)
+        with tqdm(total=n, desc=desc, unit="column", leave=False, delay=_PROGRESS_DELAY,
+                  disable=not progress, file=sys.stderr) as bar:
+            for j in range(0, n, _COLUMNS_PER_UPDATE):
+                cols = slice(j, min(j + _COLUMNS_PER_UPDATE, n))
+                A[:, cols] = apply_uncounted(op, eye[:, cols])
+                bar.update(cols.stop - cols.start)
     scale = float(np.max(np.abs(A))) if A.size else 0.0
     asym = float(np.max(np.abs(A - A.T)) / scale) if scale > 0 else 0.0
     return 0.5 * (A + A.T), asym
@@ -340,7 +366,7 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
                    "scene": parse_spec(scene_spec)[0], "scene_params": json.dumps(
                        dataclasses.asdict(sim_params), sort_keys=True, default=str),
                    "solver": solver, "stop": stop, "tol": float(tol),
-                   "max_emvps": float(max_emvps)})
+                   "max_emvps": float(max_emvps)}, progress=progress)
     with SetWriter(out, title=title, description=description, generator=generator,
                    compression=compression) as w:
         f = w.file
@@ -399,6 +425,7 @@ class _Job:
     sim_params: object                   # scene parameters of the simulation
     ckpt_path: Path
     ckpt_config: dict
+    progress: bool = False
     kept: list = dataclasses.field(default_factory=list)
     written: list = dataclasses.field(default_factory=list)
     rejected: list = dataclasses.field(default_factory=list)
@@ -498,12 +525,12 @@ def _write_step(w: SetWriter, scene, problem, k: int, job: _Job) -> None:
     lcp = problem.lcp
     n = lcp.n
     P = scene.params
-    A, asym = _dense_sym(lcp.A)
+    A, asym = _dense_sym(lcp.A, f"step {k}: high", job.progress)
     t_high = _cost(lcp.A) if n else 0.0
     low = {}
     for key in lows:
         op = lcp.low[key]
-        A_low, asym_low = _dense_sym(op)
+        A_low, asym_low = _dense_sym(op, f"step {k}: low {key}", job.progress)
         t_low = _cost(op) if n else 0.0
         knobs = scene.fidelity_knobs(key)
         ratio = t_low / t_high if t_high > 0 else 1.0
