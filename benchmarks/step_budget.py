@@ -30,11 +30,12 @@ wrappers around its parts, exclusive of each other) split every step into:
 The columns are percentages of the mean step; ``step s`` is the mean step in seconds,
 ``peak RSS`` the process's maximum resident set size.
 
-``--nc`` measures instead what the warm-started non-collisional solve saves: two copies of
+``--nc`` measures instead what the warm-started non-collisional solve saves: three copies of
 the scene take their steps in turn from the same packed state with the first solver, one
-starting ``U_nc`` from the previous step's density (the default) and one from zero; per step
-it prints the inner applications of the non-collisional solve of each (the guess's residual
-included) and of the whole step's forward solves.
+starting ``U_nc`` from the two previous steps' densities extrapolated (the default), one from
+the previous step's density and one from zero; per step it prints the inner applications of
+the non-collisional solve of each (the guess's residual included) and of the whole step's
+forward solves.
 """
 
 from __future__ import annotations
@@ -132,22 +133,26 @@ def worker(state: str, m: int, p: int, solver: str, steps: int, low: str) -> Non
 
 
 def nc_saving(state: Path, m: int, p: int, solver: str, steps: int) -> None:
-    """Side by side: the non-collisional solve from the previous density, and from zero."""
+    """Side by side: the non-collisional solve from the two previous densities
+    extrapolated (the default), from the previous density, and from zero."""
     from lcpbench.core.registry import make_scene
 
+    kinds = ("extrapolated", "previous", "cold")
     scenes = {}
-    for kind in ("warm", "cold"):
+    for kind in kinds:
         scenes[kind] = make_scene(f"paper-lattice:m={m},model=bim,p={p},eps_gmres=1e-8")
         scenes[kind].set_state(dict(np.load(state)))
+    scenes["previous"].nc_extrapolate = False
     scenes["cold"].nc_guess = lambda: None
     print(f"paper-lattice m = {m}, p = {p}, eps_gmres 1e-8, {solver}: inner applications "
-          "(warm / cold)\n")
-    print("| step | nc solve warm | nc solve cold | step warm | step cold |")
-    print("|---|---|---|---|---|")
-    totals = np.zeros(4)
+          "of the non-collisional solve and of the whole step's forward solves\n")
+    print("| step | " + " | ".join(f"nc solve {k}" for k in kinds) + " | "
+          + " | ".join(f"step {k}" for k in kinds) + " |")
+    print("|---" * (1 + 2 * len(kinds)) + "|")
+    totals = np.zeros(2 * len(kinds))
     for k in range(steps):
         row = []
-        for kind in ("warm", "cold"):
+        for kind in kinds:
             scene = scenes[kind]
             built = []
             real = scene.build
@@ -156,7 +161,7 @@ def nc_saving(state: Path, m: int, p: int, solver: str, steps: int) -> None:
             del scene.build
             prob = built[0]
             row.append((prob.nc_applications or 0, sum(prob.mobility.gmres_iterations)))
-        cells = [row[0][0], row[1][0], row[0][1], row[1][1]]
+        cells = [r[0] for r in row] + [r[1] for r in row]
         totals += cells
         print(f"| {k} | " + " | ".join(str(int(c)) for c in cells) + " |", flush=True)
     print("| all | " + " | ".join(str(int(c)) for c in totals) + " |")

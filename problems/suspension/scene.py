@@ -35,8 +35,9 @@ Time stepping is forward Euler: each step builds the contact LCP of
 ``U = U_nc + M D x``; the product ``M D x`` is the one the framework made
 when verifying the solve, so the update needs no extra mobility solve.  With the
 boundary-integral model the non-collisional solve ``U_nc`` starts from the previous
-step's density when no sphere moved more than :data:`NC_GUESS_MOVE` radii since
-(:meth:`LatticeScene.build`).
+step's density when no sphere moved more than :data:`NC_GUESS_MOVE` radii since,
+extrapolated linearly from the two previous steps' densities when both are at hand
+(:meth:`LatticeScene.nc_guess`).
 """
 
 from __future__ import annotations
@@ -275,6 +276,9 @@ class LatticeScene:
     fidelity_axes = LATTICE_AXES
     far: str = "auto"
     krylov_mb: float = ContactOptions.krylov_mb     # bim.recycle.DEFAULT_KRYLOV_MB
+    nc_extrapolate: bool = True
+    """Start the non-collisional solve from the two previous densities extrapolated
+    (:meth:`nc_guess`); False: from the previous density."""
 
     def __init__(self, m: int = 3, *, params: Optional[LatticeParams] = None, **kwargs):
         if params is not None and kwargs:
@@ -305,6 +309,8 @@ class LatticeScene:
         self._prev_memory: Optional[SecantMemory] = None
         self._nc_centers = np.empty((0, 3))       # where the kept density was solved for
         self._nc_density = np.empty(0)
+        self._nc_step = -1                        # the step it was solved at
+        self._nc_before = np.empty(0)             # the density of the step before that
         self._nc_cold = 0.0                       # applications of its solve from zero
 
     def get_state(self) -> dict:
@@ -315,8 +321,9 @@ class LatticeScene:
         same trajectory. ``memory_S`` and ``memory_Y`` hold the previous solve's
         secant pairs (``qn_memory=True``; no columns otherwise), ``nc_centers`` and
         ``nc_density`` the non-collisional solve's density and where it was solved for
-        (the next guess; empty without one), ``nc_cold`` the inner applications of that
-        solve from zero.
+        (the next guess; empty without one), ``nc_step`` the step it was solved at and
+        ``nc_before`` the density of the step before (empty without one), ``nc_cold``
+        the inner applications of that solve from zero.
         """
         mem = self._prev_memory
         empty = np.zeros((len(self._prev_pairs), 0))
@@ -326,6 +333,7 @@ class LatticeScene:
                 "memory_S": empty if mem is None else mem.S.copy(),
                 "memory_Y": empty if mem is None else mem.Y.copy(),
                 "nc_centers": self._nc_centers.copy(), "nc_density": self._nc_density.copy(),
+                "nc_step": np.array(self._nc_step), "nc_before": self._nc_before.copy(),
                 "nc_cold": np.array(self._nc_cold)}
 
     def set_state(self, state: dict) -> None:
@@ -346,6 +354,9 @@ class LatticeScene:
                                       dtype=np.float64).reshape(-1, 3)
         self._nc_density = np.asarray(state.get("nc_density", np.empty(0)),
                                       dtype=np.float64).reshape(-1)
+        self._nc_step = int(state.get("nc_step", -1))
+        self._nc_before = np.asarray(state.get("nc_before", np.empty(0)),
+                                     dtype=np.float64).reshape(-1)
         self._nc_cold = float(state.get("nc_cold", 0.0))
 
     def fidelity_knobs(self, name: str) -> dict:
@@ -402,12 +413,25 @@ class LatticeScene:
         self._prev_memory = memory if isinstance(memory, SecantMemory) else None
 
     def nc_guess(self) -> Optional[np.ndarray]:
-        """The kept density of the non-collisional solve when no sphere moved more than
-        :data:`NC_GUESS_MOVE` radii since it was solved for, else None."""
+        """The start of the non-collisional solve: None when no density is kept or a sphere
+        moved more than :data:`NC_GUESS_MOVE` radii since it was solved for; else, when
+        it was solved at the previous step and the density of the step before is kept too
+        (and ``nc_extrapolate``), the two extrapolated linearly to this step, ``2 s_1 -
+        s_0``; else the kept density.
+
+        The density is a smooth function of the configuration, which moves by one time
+        step per step, so the extrapolation's error is second order in the step where
+        the kept density's is first order (measured: docs/benchmarks.md, "Non-collisional
+        solve from two steps")."""
         if self._nc_density.size == 0 or self._nc_centers.shape != self.centers.shape:
             return None
         moved = float(np.max(np.linalg.norm(self.centers - self._nc_centers, axis=1)))
-        return self._nc_density if moved <= NC_GUESS_MOVE * float(np.min(self.radii)) else None
+        if moved > NC_GUESS_MOVE * float(np.min(self.radii)):
+            return None
+        if (self.nc_extrapolate and self._nc_step == self.step_index - 1
+                and self._nc_before.shape == self._nc_density.shape):
+            return 2.0 * self._nc_density - self._nc_before
+        return self._nc_density
 
     def build(self, warm_start: bool = True, symmetrize: Optional[bool] = None,
               lows: Optional[Sequence[str]] = None) -> ContactProblem:
@@ -432,7 +456,12 @@ class LatticeScene:
             meta={"family": "lattice", "step": self.step_index, "m": P.m, "seed": P.seed},
             nc_guess=self.nc_guess() if warm_start else None, nc_cold=self._nc_cold or None)
         if problem.nc_density is not None:
+            if self._nc_step != self.step_index:   # a new step: the kept one moves back
+                consecutive = (self._nc_step == self.step_index - 1
+                               and self._nc_density.shape == problem.nc_density.shape)
+                self._nc_before = self._nc_density if consecutive else np.empty(0)
             self._nc_centers, self._nc_density = self.centers.copy(), problem.nc_density
+            self._nc_step = self.step_index
             self._nc_cold = float(problem.nc_cold_applications or 0.0)
         if warm_start and problem.contacts.n:
             x0 = self.warm_start(problem)
