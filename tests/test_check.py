@@ -146,3 +146,25 @@ def test_shipped_sets_are_problem_plugins(tmp_path, set_path, monkeypatch, capsy
     finally:
         registry._PROBLEMS.pop("set-lattice-demo", None)
         registry._SETS.pop("Lattice_demo", None)
+
+
+def test_a_multi_fidelity_solver_without_a_low_runs_once_per_low(tmp_path, capsys):
+    """``--solver bi-pqn`` on a set with two lows checks ``bi-pqn:low=A`` and ``low=B`` (as
+    ``lcpbench run`` does), and a run that fails shows the solver's own message."""
+    path = tmp_path / "two.h5"
+    generate(SCENE, "24", path, lows=["self", "rpy"], progress=False)
+    base = tmp_path / "b.json"
+    code = main(["check", "--set", str(path), "--baseline", str(base), "--solver", "bi-pqn",
+                 "--update-baseline", "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert set(json.loads(base.read_text())["sets"]["two"]) == {"bi-pqn:low=rpy",
+                                                               "bi-pqn:low=self"}
+    assert "bi-pqn:low=rpy" in out and "bi-pqn:low=self" in out and "REGRESSED" not in out
+    # a failed run says why (here: a solver whose code raises)
+    import misbehave_plugin  # noqa: F401  (registers test-misbehave)
+
+    rows = check([str(path)], baseline=base, solver_specs=["test-misbehave:mode=raise"])
+    assert len(rows) == 1 and rows[0].regressed
+    assert any("1 of 1 run(s) failed" in p and "boom on purpose" in p
+               for p in rows[0].problems), rows[0].problems

@@ -26,7 +26,8 @@ def add_check_parser(sub) -> None:
     p.add_argument("--set", action="append", default=None, metavar="NAME",
                    help="shipped set name or .h5 path, repeatable (default: every shipped set)")
     add_spec_option(p, "solver", many=True,
-                    help="solver spec, repeatable (default: every MVP-only solver)")
+                    help="solver spec, repeatable (default: every MVP-only solver); "
+                         "bi-pqn without low= runs once per low of the set")
     add_stop_options(p, per="run", with_stop=False)
     p.add_argument("--baseline", default=None, metavar="FILE",
                    help="baseline file (default problems/data/baselines.json)")

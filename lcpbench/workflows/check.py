@@ -199,6 +199,17 @@ def default_specs(low_names: Sequence[str]) -> list[str]:
     return specs
 
 
+def _per_low(specs: Sequence[str], low_names: Sequence[str]) -> list[str]:
+    """The given solver specs, a multi-fidelity one that names no low once per low of the
+    set (as ``lcpbench run`` and the default list do: ``bi-pqn`` on a set with p4e6 and
+    rpy is ``bi-pqn:low=p4e6`` and ``bi-pqn:low=rpy``)."""
+    out: list[str] = []
+    for spec in specs:
+        for s in expand(spec, "solver"):
+            out.extend(x.label for x in per_low(s, low_names))
+    return out
+
+
 def _w_err(lcp, x: np.ndarray) -> float:
     ref = lcp.reference
     if ref is None or ref.get("w") is None or not np.all(np.isfinite(x)):
@@ -227,7 +238,8 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     update_baseline : bool
         Rewrite the baselines of the checked sets with this run's medians.
     solver_specs : list of str, optional
-        Solvers to run instead of :func:`default_specs`.
+        Solvers to run instead of :func:`default_specs`; a multi-fidelity spec that names
+        no low runs once per low of each set (``bi-pqn`` is ``bi-pqn:low=p4e6``, ...).
     max_emvps : float
         E-MVP budget of each run.
     progress : bool
@@ -270,7 +282,7 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
     plans = []
     for name, lcps in loaded.items():
         lows = sorted({k for lcp in lcps for k in lcp.low})
-        for spec in (list(solver_specs) if solver_specs else default_specs(lows)):
+        for spec in (_per_low(solver_specs, lows) if solver_specs else default_specs(lows)):
             plans.append((name, spec))
     rows: list[CheckRow] = []
     total = sum(len(loaded[name]) for name, _ in plans)
@@ -278,11 +290,14 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
                file=sys.stderr)
     try:
         for name, spec in plans:
-            emvps, solved, errs, notes = [], 0, [], []
+            emvps, solved, errs, notes, failures = [], 0, [], [], {}
             for lcp in loaded[name]:
                 res = run_solver(lcp, spec, stop="paper", tol=tol,
                                  budget=Budget(max_emvps=max_emvps))
                 solved += int(res.solved)
+                if res.status == "failed":
+                    why = " ".join(str(res.message or "no message").split())
+                    failures[why] = failures.get(why, 0) + 1
                 emvps.append(float(res.emvps))
                 errs.append(_w_err(lcp, res.x))
                 bar.update(1)
@@ -291,6 +306,8 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
             base = data["sets"].get(name, {}).get(spec)
             finite = [e for e in errs if not np.isnan(e)]
             max_err = max(finite) if finite else float("nan")
+            for why, count in failures.items():      # the solver's own words first
+                notes.append(f"{count} of {runs} run(s) failed: {why}")
             if solved < runs:
                 notes.append(f"{runs - solved} of {runs} verified residual(s) above the "
                              f"tolerance {tol:g}")
