@@ -40,7 +40,15 @@ def test_default_keeps_table_pairs_in_rotated_form(plan):
     assert plan.pair_blocks == "table-all"
     assert isinstance(plan.blocks, PlanBlocks)
     assert 0 < plan.n_table_blocks < plan.n_block_pairs
-    assert plan.rotated.vals.shape == (plan.n_table_blocks, int(order_mask(5).sum()))
+    # a pair and its reverse share one row of coaxial entries (the block depends on the
+    # distance alone); only their rotations differ
+    rot = plan.rotated
+    assert rot.D.shape[0] == plan.n_table_blocks
+    assert rot.vals.shape == (plan.n_table_blocks // 2, int(order_mask(5).sum()))
+    t, s = plan.block_tgt[plan.rot_pos], plan.block_src[plan.rot_pos]
+    where = {(a, b): k for k, (a, b) in enumerate(zip(t.tolist(), s.tolist()))}
+    assert all(rot.vrow[k] == rot.vrow[where[(b, a)]] for (a, b), k in where.items())
+    assert np.unique(rot.vrow).size == rot.vals.shape[0]
     nv = plan.blocks.shape[1]
     dense = plan.n_block_pairs - plan.n_table_blocks
     # memory per pair: Wigner matrices + coaxial entries, far below an assembled block

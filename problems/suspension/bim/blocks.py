@@ -101,8 +101,8 @@ class StoredBlocks:
         """Multiply-adds of one product with the blocks (those rotated at each product
         counted as if stored)."""
         rot = 0 if self.rotated is None else self.rotated.work
-        if self.rotated is not None and self.rotated.vals.shape[0]:
-            per_pair = self.rotated.work / self.rotated.vals.shape[0]
+        if self.rotated is not None and self.rotated.n_pairs:
+            per_pair = self.rotated.work / self.rotated.n_pairs
             rot += int(per_pair * (0 if self.fly is None else self.fly.rho.size))
         return int(self._dense.blocks.size) + rot
 

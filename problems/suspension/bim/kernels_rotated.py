@@ -13,8 +13,10 @@ and its coaxial entries, never as the assembled ``nv x nv`` block ``L D E D^T``
 
 A product per pair is ``c' = D^T c_j`` (block diagonal by kind and degree), ``y = E c'``,
 ``acc_i += L D y``; the transpose is ``D E^T D^T L^T``.  The kernels take the pairs'
-rotated form as one tuple ``form = (D, vals, ptr, idx, layout, dev, L)`` (``D`` (K, nw),
-``vals`` (K, nnz), ``L`` the rows ``dev`` of the output map).  ``layout[n]`` holds, per degree
+rotated form as one tuple ``form = (D, vals, vrow, perm, groups, layout, dev, L)`` (``D``
+(K, nw), ``vals`` (U, nnz) and pair k's coaxial entries its row ``vrow[k]``: a pair and
+its reverse share them, the coaxial block depending on the distance alone; ``L`` the rows
+``dev`` of the output map).  ``layout[n]`` holds, per degree
 n, the first coefficient of degree n, its number of kinds and the offset of its Wigner
 matrix in a pair's ``D`` row.  The forward kernels run in parallel over target spheres
 (``tptr``: the pairs by target), the transposed one over source spheres (``sptr`` /
@@ -93,14 +95,14 @@ def _coaxial(vals: np.ndarray, groups: np.ndarray, x: np.ndarray, y: np.ndarray,
 def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
                   work: np.ndarray) -> None:
     """``acc += L D E D^T c`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
-    Ds, vs, perm, groups, layout, dev, L = form
+    Ds, vs, vrow, perm, groups, layout, dev, L = form
     D = Ds[k]
     nv = c.size
     cp, y, z = work[0], work[1], work[2]
     _rotate_in(D, layout, c, cp, True)
     for q in range(nv):                          # to order-major
         y[q] = cp[perm[q]]
-    _coaxial(vs[k], groups, y, z, False)
+    _coaxial(vs[vrow[k]], groups, y, z, False)
     for q in range(nv):                          # back to the basis order
         cp[perm[q]] = z[q]
     _rotate_in(D, layout, cp, z, False)
@@ -119,7 +121,7 @@ def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
 def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
                     work: np.ndarray) -> None:
     """``out += D E^T D^T L^T x`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
-    Ds, vs, perm, groups, layout, dev, L = form
+    Ds, vs, vrow, perm, groups, layout, dev, L = form
     D = Ds[k]
     nv = x.size
     x1, x2, x3 = work[0], work[1], work[2]
@@ -134,7 +136,7 @@ def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
     _rotate_in(D, layout, x1, x2, True)
     for q in range(nv):
         x1[q] = x2[perm[q]]
-    _coaxial(vs[k], groups, x1, x3, True)
+    _coaxial(vs[vrow[k]], groups, x1, x3, True)
     for q in range(nv):
         x2[perm[q]] = x3[q]
     _rotate_in(D, layout, x2, x1, False)
@@ -216,9 +218,9 @@ class RotatedPairs:
         Order of the blocks.
     D : ndarray, shape (K, nw)
         Per pair the real Wigner matrices of degree 0..p, row-major, one after the other.
-    vals : ndarray, shape (K, nnz)
-        Per pair the coaxial block's entries, one dense block per azimuthal order m
-        (rows and columns in the order-major order ``perm``), row-major.
+    vals : ndarray, shape (U, nnz)
+        Coaxial blocks' entries, one dense block per azimuthal order m (rows and columns in
+        the order-major order ``perm``), row-major; pair k's are row ``vrow[k]``.
     ptr, idx : ndarray
         Row pointers (nv + 1) and columns (nnz) of the equal-order pattern (basis order).
     perm : ndarray
@@ -233,6 +235,8 @@ class RotatedPairs:
         Rows of the output map ``L`` that differ from the identity.
     L : ndarray, shape (len(dev), nv)
         Those rows.
+    vrow : ndarray, shape (K,)
+        Each pair's row of ``vals`` (None: row k, one row per pair).
     """
 
     p: int
@@ -246,26 +250,48 @@ class RotatedPairs:
     perm: np.ndarray
     groups: np.ndarray
     gather: np.ndarray
+    vrow: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.vrow is None:
+            object.__setattr__(self, "vrow", np.arange(self.D.shape[0], dtype=np.int64))
+
+    @property
+    def n_pairs(self) -> int:
+        """Pairs kept (rows of ``D``)."""
+        return int(self.D.shape[0])
 
     @classmethod
     def from_table(cls, Dn: list[np.ndarray], table: CoaxialTable, rho: np.ndarray,
-                   left_matrix: np.ndarray) -> RotatedPairs:
+                   left_matrix: np.ndarray, pairs: tuple | None = None) -> RotatedPairs:
         """:meth:`build` for the coaxial blocks of ``table`` at the scaled distances
-        ``rho``, their entries interpolated straight into the kernels' order."""
+        ``rho``, their entries interpolated straight into the kernels' order.  With
+        ``pairs = (targets, sources)`` a pair and its reverse at the same ``rho`` (equal
+        radii) share one row of entries: the coaxial block depends on the distance alone
+        (only the rotations differ), so half the entries are interpolated and stored."""
         pattern = order_mask(table.p)
         gather = _order_major(pattern)[2]
-        return cls.build(Dn, table.values(rho, columns=gather), pattern, left_matrix,
-                         ordered=True)
+        rho = np.asarray(rho, dtype=float)
+        if pairs is None or not rho.size:
+            return cls.build(Dn, table.values(rho, columns=gather), pattern, left_matrix,
+                             ordered=True)
+        t, s = (np.asarray(a, dtype=np.int64) for a in pairs)
+        key = np.column_stack([np.minimum(t, s), np.maximum(t, s), rho.view(np.int64)])
+        first, vrow = np.unique(key, axis=0, return_index=True, return_inverse=True)[1:]
+        return cls.build(Dn, table.values(rho[first], columns=gather), pattern, left_matrix,
+                         ordered=True, vrow=vrow.reshape(-1))
 
     @classmethod
     def build(cls, Dn: list[np.ndarray], vals: np.ndarray, pattern: np.ndarray,
-              left_matrix: np.ndarray, ordered: bool = False) -> RotatedPairs:
+              left_matrix: np.ndarray, ordered: bool = False,
+              vrow: np.ndarray | None = None) -> RotatedPairs:
         """The rotated form of the blocks ``left_matrix D E D^T``: ``Dn[n]`` (K, 2n+1,
         2n+1) the Wigner matrices per degree, ``vals`` (K, nnz) the entries of the coaxial
         blocks on the bool ``pattern`` (nv, nv), row-major (``ordered``: already in the
-        order-major order of :attr:`vals`, kept without a copy)."""
+        order-major order of :attr:`vals`, kept without a copy; ``vrow``: pair k's row of
+        ``vals``, which then has a row per distinct block)."""
         p = len(Dn) - 1
-        K = vals.shape[0]
+        K = Dn[0].shape[0]
         layout = np.empty((p + 1, 3), dtype=np.int64)
         off = 0
         for n, rows in enumerate(degree_slices(p)):
@@ -280,24 +306,26 @@ class RotatedPairs:
                    np.ascontiguousarray(vals if ordered else vals[:, gather]),
                    np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
                    np.nonzero(pattern)[1].astype(np.int64), layout, dev.astype(np.int64),
-                   np.ascontiguousarray(left_matrix[dev]), perm, groups, gather)
+                   np.ascontiguousarray(left_matrix[dev]), perm, groups, gather,
+                   None if vrow is None else np.ascontiguousarray(vrow, dtype=np.int64))
 
     @property
     def form(self) -> tuple:
         """The tuple the compiled kernels read."""
-        return (self.D, self.vals, self.perm, self.groups, self.layout, self.dev, self.L)
+        return (self.D, self.vals, self.vrow, self.perm, self.groups, self.layout, self.dev,
+                self.L)
 
     @property
     def nbytes(self) -> int:
         """Memory of the per-pair data (the pattern and output map are shared)."""
-        return int(self.D.nbytes + self.vals.nbytes)
+        return int(self.D.nbytes + self.vals.nbytes + self.vrow.nbytes)
 
     @property
     def work(self) -> int:
         """Multiply-adds of one forward product with every pair."""
         nv = self.ptr.size - 1
         rot = int(sum(k * (2 * n + 1) ** 2 for n, k in enumerate(self.layout[:, 1])))
-        return int(self.vals.shape[0] * (2 * rot + self.vals.shape[1] + self.dev.size * nv))
+        return int(self.n_pairs * (2 * rot + self.vals.shape[1] + self.dev.size * nv))
 
     def truncated(self, sel: np.ndarray, q: int) -> RotatedPairs:
         """The rotated form of the pairs ``sel`` restricted to the coefficients of degree
@@ -319,11 +347,13 @@ class RotatedPairs:
         """
         sel = np.asarray(sel, dtype=np.int64)
         nv = self.ptr.size - 1
+        shared, vrow = np.unique(self.vrow[sel], return_inverse=True)   # entry rows kept
+        vrow = vrow.reshape(-1)
         if q < 0 or q >= self.p:
             return RotatedPairs(self.p, np.ascontiguousarray(self.D[sel]),
-                                np.ascontiguousarray(self.vals[sel]), self.ptr, self.idx,
+                                np.ascontiguousarray(self.vals[shared]), self.ptr, self.idx,
                                 self.layout, self.dev, self.L, self.perm, self.groups,
-                                self.gather)
+                                self.gather, vrow)
         nq = int(self.layout[q + 1, 0])
         left = np.eye(nv)
         left[self.dev] = self.L
@@ -335,8 +365,8 @@ class RotatedPairs:
         keep = (rows < nq) & (self.idx < nq)
         pattern = np.zeros((nq, nq), dtype=bool)
         pattern[rows[keep], self.idx[keep]] = True
-        entries = np.empty((sel.size, self.vals.shape[1]))      # row-major on the pattern
-        entries[:, self.gather] = self.vals[sel]
+        entries = np.empty((shared.size, self.vals.shape[1]))   # row-major on the pattern
+        entries[:, self.gather] = self.vals[shared]
         perm, groups, gather = _order_major(pattern)
         nw = int(self.layout[q, 2]) + (2 * q + 1) ** 2
         left_q = left[:nq, :nq]
@@ -346,7 +376,7 @@ class RotatedPairs:
                             np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
                             np.nonzero(pattern)[1].astype(np.int64),
                             np.ascontiguousarray(self.layout[:q + 1]), dev.astype(np.int64),
-                            np.ascontiguousarray(left_q[dev]), perm, groups, gather)
+                            np.ascontiguousarray(left_q[dev]), perm, groups, gather, vrow)
 
     def assemble(self, sel: np.ndarray) -> np.ndarray:
         """The assembled blocks ``L D E D^T`` of the pairs ``sel``, ``(len(sel), nv, nv)``."""
@@ -361,7 +391,7 @@ class RotatedPairs:
         left = np.eye(nv)
         left[self.dev] = self.L
         vals = np.empty((sel.size, self.vals.shape[1]))
-        vals[:, self.gather] = self.vals[sel]
+        vals[:, self.gather] = self.vals[self.vrow[sel]]
         slices = [lo + np.arange(kinds * (2 * n + 1), dtype=np.int64).reshape(kinds, -1)
                   for n, (lo, kinds, _) in enumerate(self.layout)]
         return rotate_blocks(vals, Dn, slices, left_matrix=left, pattern=pattern)
@@ -497,8 +527,11 @@ class PlanBlocks:
             return parts[0][1]
         first = parts[0][1]
         D = np.empty((sel.size, first.D.shape[1]))
-        vals = np.empty((sel.size, first.vals.shape[1]))
+        vrow = np.empty(sel.size, dtype=np.int64)
+        offset = 0
         for rows, part in parts:
-            D[rows], vals[rows] = part.D, part.vals
+            D[rows], vrow[rows] = part.D, part.vrow + offset
+            offset += part.vals.shape[0]
+        vals = np.concatenate([part.vals for _, part in parts])
         return RotatedPairs(first.p, D, vals, first.ptr, first.idx, first.layout, first.dev,
-                            first.L, first.perm, first.groups, first.gather)
+                            first.L, first.perm, first.groups, first.gather, vrow)

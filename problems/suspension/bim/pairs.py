@@ -382,13 +382,15 @@ class PairPlan:
 
     def _block_bytes(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
         """Memory of each pair's stored block: assembled (``nv x nv``), or in rotated form
-        (Wigner matrices and coaxial entries) for table pairs with ``"table-all"``."""
+        (Wigner matrices, its row index and coaxial entries) for table pairs with
+        ``"table-all"``; a pair and its reverse share their coaxial entries
+        (:meth:`.kernels_rotated.RotatedPairs.from_table`), each charged half."""
         nv = self.basis.B.shape[1]
         full = np.full(ii.size, 8.0 * nv * nv)
         if self.pair_blocks != "table-all" or self.p < 2:
             return full
         nw = sum((2 * n + 1) ** 2 for n in range(self.p + 1))
-        rot = 8.0 * (nw + int(order_mask(self.p).sum()))
+        rot = 8.0 * (nw + 1 + 0.5 * int(order_mask(self.p).sum()))
         return np.where(self._table_pairs(ii, jj), rot, full)
 
     def _block_values(self, blocked: list[tuple[int, int]],
@@ -419,7 +421,8 @@ class PairPlan:
             late = np.array([pair in fly for pair in blocked], dtype=bool)
             keep, late = np.nonzero(use & ~late)[0], np.nonzero(use & late)[0]
             self.rotated = RotatedPairs.from_table(wigner_directions(u[keep], self.p), table,
-                                                   rho[keep], self._output_map)
+                                                   rho[keep], self._output_map,
+                                                   pairs=(ii[keep], jj[keep]))
             if late.size:
                 self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
             self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
