@@ -290,7 +290,8 @@ def check(sets: Optional[Sequence[str]] = None, *, tol: float = 1e-8,
                file=sys.stderr)
     try:
         for name, spec in plans:
-            emvps, solved, errs, notes, failures = [], 0, [], [], {}
+            emvps, solved, errs, notes = [], 0, [], []
+            failures: dict[str, int] = {}
             for lcp in loaded[name]:
                 res = run_solver(lcp, spec, stop="paper", tol=tol,
                                  budget=Budget(max_emvps=max_emvps))
