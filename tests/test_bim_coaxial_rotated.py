@@ -214,7 +214,7 @@ def test_serial_and_parallel_builds_have_their_own_cache_entries(module, par_nam
     assert files[0]._index_name != files[1]._index_name                   # own entries
 
 
-def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree():
+def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree(plan):
     """The distance-split low of a rotated-form high truncates each table pair in rotated
     form (degree <= q of its rotation and coaxial entries), never assembling it: its
     blocks are the leading parts of the high's, and its products, forward and
@@ -232,20 +232,17 @@ def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree():
         return out
 
     c = _packed(2)
-    radii = np.ones(len(c))
-    radii[3] = 0.95                              # its pairs are built directly, kept dense
     full = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10).plan
     full_ref = assembled_copy(full)
     with pytest.warns(RuntimeWarning, match="near_block_mb"):
         small = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=0.2).plan
-    mixed = BimSetup(c, radii, p=5, mu=1.0, quad_tol=1e-10).plan
-    mixed_ref = assembled_copy(mixed)
+    mixed = plan                                 # one larger sphere: its pairs kept dense
     kw = dict(far_degree=3, near_gap=0.5, decay=0.5, rank_tol=None)
     rng = np.random.default_rng(5)
-    coef = rng.standard_normal((full.M, full.blocks.shape[1]))
-    ob = rng.standard_normal((full.M, 3 * full.N))
-    for plan, assembled, n_dense in ((full, full_ref, 0), (small, full_ref, 0),
-                                     (mixed, mixed_ref, 2)):
+    for plan, assembled, dense in ((full, full_ref, False), (small, full_ref, False),
+                                   (mixed, assembled_copy(mixed), True)):
+        coef = rng.standard_normal((plan.M, plan.blocks.shape[1]))
+        ob = rng.standard_normal((plan.M, 3 * plan.N))
         ref = SplitBlocks(assembled, **kw)
         assert all(g.rotated is None for g in ref.groups)
         bar_ref = np.zeros_like(coef)
@@ -254,8 +251,8 @@ def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree():
         rot = [g for g in split.groups if g.rotated is not None]
         # per degree (-1: full) a group in rotated form, and with unequal radii one of
         # the directly built (dense) blocks
-        assert len(rot) == len(ref.groups) >= 2
-        assert len(split.groups) - len(rot) == n_dense
+        assert len(rot) >= 2 and (len(split.groups) > len(rot)) == dense
+        assert {g.sel.size for g in rot} == {g.sel.size for g in ref.groups}
         for g in rot:
             k = np.nonzero(np.isin(plan.block_tgt * plan.M + plan.block_src,
                                    g.tgt * plan.M + g.src))[0]
