@@ -119,6 +119,10 @@ def one_configuration(m: int, p: int, pack: int, ref_p: int | None,
     out["agree"] = float(np.linalg.norm(U["table-all"] - U["direct"])
                          / np.linalg.norm(U["direct"]))
     if upsample:
+        # "table": the projected zone's pairs from the table, the others node-sampled as
+        # the direct build samples them; the converged direct build differs from it only
+        # in the zone's projection
+        U["table"] = products(BimSetup(c, r, pair_blocks="table", **kw), F)
         conv = products(BimSetup(c, r, pair_blocks="direct", near_upsample=upsample, **kw), F)
         out["converged"] = {k: float(np.linalg.norm(v - conv) / np.linalg.norm(conv))
                             for k, v in U.items()}
