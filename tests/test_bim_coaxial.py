@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
+from sphere_cases import packed
 
 from lcpbench.problems.suspension.bim import coaxial
 from lcpbench.problems.suspension.bim.coaxial import (
@@ -46,14 +47,6 @@ def _projected_block(ci, cj, a, p, q):
     real_block_columns(resp.reshape(Nq, -1, 3), flat, cfac, Ep)
     W = np.repeat(g.weights, 3)
     return sampled_basis(p, q).T @ (W[:, None] * Ep[0])
-
-
-def _packed(n_side=2, spacing=2.35, jitter=0.1, seed=5):
-    rng = np.random.default_rng(seed)
-    ax = np.arange(n_side) * spacing
-    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
-    c = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    return c + rng.uniform(-jitter / 2, jitter / 2, c.shape)
 
 
 @pytest.mark.parametrize("p, distances", [(4, (1.02, 1.6, 4.0)), (8, (1.02,))])
@@ -99,7 +92,7 @@ def test_table_interpolates_the_coaxial_block():
 
 def test_setup_takes_equal_pairs_from_the_table_and_others_directly():
     p = 3
-    c = _packed()
+    c = packed(2)
     r = np.ones(len(c))
     r[0] = 0.9                                       # the pairs of sphere 0 are unequal
     kw = dict(p=p, mu=1.0, quad_tol=1e-10)
@@ -122,7 +115,7 @@ def test_setup_takes_equal_pairs_from_the_table_and_others_directly():
 def test_table_all_takes_node_sampled_pairs_from_the_table():
     """With "table-all" a node-sampled pair's block is the exact projection too."""
     p = 3
-    c = _packed()
+    c = packed(2)
     plan = BimSetup(c, 1.0, p=p, mu=1.0, quad_tol=1e-10, pair_blocks="table-all").plan
     assert plan.n_table_blocks == plan.n_block_pairs
     node = [k for k, (i, j) in enumerate(zip(plan.block_tgt, plan.block_src))
@@ -137,11 +130,11 @@ def test_table_all_takes_node_sampled_pairs_from_the_table():
 
 def test_bad_pair_blocks_value():
     with pytest.raises(ValueError, match="pair_blocks = 'rotated'.*'direct'.*'table'.*'table-all'"):
-        BimSetup(_packed(), 1.0, p=3, mu=1.0, quad_tol=1e-8, pair_blocks="rotated")
+        BimSetup(packed(2), 1.0, p=3, mu=1.0, quad_tol=1e-8, pair_blocks="rotated")
 
 
 def test_memory_budget_that_leaves_pairs_unblocked_warns_once():
-    c = _packed()
+    c = packed(2)
     with pytest.warns(RuntimeWarning, match=r"leaves \d+ of \d+ near pairs.*raise near_block_mb"
                       ) as rec:
         plan = BimSetup(c, 1.0, p=3, mu=1.0, quad_tol=1e-8, near_block_mb=0.1).plan
@@ -199,7 +192,7 @@ def test_mobility_with_table_blocks_matches_the_direct_build():
     from lcpbench.problems.suspension.bim.operator import BimMobility
     from lcpbench.problems.suspension.bim.recycle import KrylovBudget
 
-    c = _packed(jitter=0.1)
+    c = packed(2, jitter=0.1)
     ft = np.random.default_rng(7).standard_normal(6 * len(c))
     out = {}
     for mode in ("direct", "table"):

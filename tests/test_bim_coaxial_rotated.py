@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from sphere_cases import packed as _packed
 
 from lcpbench.problems.suspension.bim import kernels as kn
 from lcpbench.problems.suspension.bim import kernels_adjoint as ka
@@ -13,14 +14,6 @@ from lcpbench.problems.suspension.bim.blocks import StoredBlocks
 from lcpbench.problems.suspension.bim.coaxial import order_mask
 from lcpbench.problems.suspension.bim.kernels_rotated import PlanBlocks
 from lcpbench.problems.suspension.bim.setup import BimSetup
-
-
-def _packed(n_side=3, spacing=2.35, jitter=0.1, seed=5):
-    rng = np.random.default_rng(seed)
-    ax = np.arange(n_side) * spacing
-    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
-    c = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-    return c + rng.uniform(-jitter / 2, jitter / 2, c.shape)
 
 
 @pytest.fixture(scope="module")
