@@ -207,6 +207,18 @@ def _order_major(pattern: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return perm, groups.astype(np.int64), gather
 
 
+def _pattern_parts(pattern: np.ndarray, left_matrix: np.ndarray) -> tuple:
+    """What :class:`RotatedPairs` keeps of a coaxial pattern and an output map: the row
+    pointers and columns of the pattern, the rows ``dev`` where the map differs from the
+    identity and those rows, and the order-major permutation, groups and gather
+    (:func:`_order_major`)."""
+    nv = pattern.shape[0]
+    dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
+    return (np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
+            np.nonzero(pattern)[1].astype(np.int64), dev.astype(np.int64),
+            np.ascontiguousarray(left_matrix[dev]), *_order_major(pattern))
+
+
 @dataclass(frozen=True)
 class RotatedPairs:
     """Blocks kept in rotated form (see the module): per pair its flat Wigner matrices and
@@ -298,15 +310,11 @@ class RotatedPairs:
             layout[n] = (int(rows[0, 0]), rows.shape[0], off)
             off += (2 * n + 1) ** 2
         D = np.concatenate([d.reshape(K, -1) for d in Dn], axis=1) if K else np.zeros((0, off))
-        nv = pattern.shape[0]
-        dev = np.nonzero(np.abs(left_matrix - np.eye(nv)).max(axis=1) > 1e-12)[0]
-        perm, groups, gather = _order_major(pattern)
+        ptr, idx, dev, L, perm, groups, gather = _pattern_parts(pattern, left_matrix)
         vals = np.asarray(vals, dtype=float)
         return cls(p, np.ascontiguousarray(D),
                    np.ascontiguousarray(vals if ordered else vals[:, gather]),
-                   np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
-                   np.nonzero(pattern)[1].astype(np.int64), layout, dev.astype(np.int64),
-                   np.ascontiguousarray(left_matrix[dev]), perm, groups, gather,
+                   ptr, idx, layout, dev, L, perm, groups, gather,
                    None if vrow is None else np.ascontiguousarray(vrow, dtype=np.int64))
 
     @property
@@ -367,16 +375,12 @@ class RotatedPairs:
         pattern[rows[keep], self.idx[keep]] = True
         entries = np.empty((shared.size, self.vals.shape[1]))   # row-major on the pattern
         entries[:, self.gather] = self.vals[shared]
-        perm, groups, gather = _order_major(pattern)
+        ptr, idx, dev, L, perm, groups, gather = _pattern_parts(pattern, left[:nq, :nq])
         nw = int(self.layout[q, 2]) + (2 * q + 1) ** 2
-        left_q = left[:nq, :nq]
-        dev = np.nonzero(np.abs(left_q - np.eye(nq)).max(axis=1) > 1e-12)[0]
         return RotatedPairs(q, np.ascontiguousarray(self.D[sel, :nw]),
-                            np.ascontiguousarray(entries[:, keep][:, gather]),
-                            np.concatenate([[0], np.cumsum(pattern.sum(axis=1))]).astype(np.int64),
-                            np.nonzero(pattern)[1].astype(np.int64),
-                            np.ascontiguousarray(self.layout[:q + 1]), dev.astype(np.int64),
-                            np.ascontiguousarray(left_q[dev]), perm, groups, gather, vrow)
+                            np.ascontiguousarray(entries[:, keep][:, gather]), ptr, idx,
+                            np.ascontiguousarray(self.layout[:q + 1]), dev, L, perm, groups,
+                            gather, vrow)
 
     def assemble(self, sel: np.ndarray) -> np.ndarray:
         """The assembled blocks ``L D E D^T`` of the pairs ``sel``, ``(len(sel), nv, nv)``."""
