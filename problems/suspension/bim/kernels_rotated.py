@@ -92,20 +92,29 @@ def _coaxial(vals: np.ndarray, groups: np.ndarray, x: np.ndarray, y: np.ndarray,
 
 
 @njit(cache=True, fastmath=True)
+def _rotated_coaxial(D: np.ndarray, layout: np.ndarray, vals: np.ndarray, perm: np.ndarray,
+                     groups: np.ndarray, src: np.ndarray, out: np.ndarray, s1: np.ndarray,
+                     s2: np.ndarray, transpose: bool) -> None:
+    """``out = D E D^T src`` (``E^T`` with ``transpose``) for one pair, through the
+    order-major permutation; ``s1``, ``s2`` are scratch and ``out`` may be ``src``."""
+    _rotate_in(D, layout, src, s1, True)
+    for q in range(s1.size):                     # to order-major
+        s2[q] = s1[perm[q]]
+    _coaxial(vals, groups, s2, out, transpose)
+    for q in range(s1.size):                     # back to the basis order
+        s1[perm[q]] = out[q]
+    _rotate_in(D, layout, s1, out, False)
+
+
+@njit(cache=True, fastmath=True)
 def _pair_forward(form: tuple, k: int, c: np.ndarray, acc: np.ndarray,
                   work: np.ndarray) -> None:
     """``acc += L D E D^T c`` for pair k of ``form`` (``work``: (3, nv) scratch)."""
     Ds, vs, vrow, perm, groups, layout, dev, L = form
     D = Ds[k]
     nv = c.size
-    cp, y, z = work[0], work[1], work[2]
-    _rotate_in(D, layout, c, cp, True)
-    for q in range(nv):                          # to order-major
-        y[q] = cp[perm[q]]
-    _coaxial(vs[vrow[k]], groups, y, z, False)
-    for q in range(nv):                          # back to the basis order
-        cp[perm[q]] = z[q]
-    _rotate_in(D, layout, cp, z, False)
+    y, z = work[1], work[2]
+    _rotated_coaxial(D, layout, vs[vrow[k]], perm, groups, c, z, work[0], y, False)
     for i in range(dev.size):                    # rows of L that differ from the identity
         s = 0.0
         for j in range(nv):
@@ -133,13 +142,7 @@ def _pair_transpose(form: tuple, k: int, x: np.ndarray, out: np.ndarray,
         xi = x[dev[i]]
         for j in range(nv):
             x1[j] += L[i, j] * xi
-    _rotate_in(D, layout, x1, x2, True)
-    for q in range(nv):
-        x1[q] = x2[perm[q]]
-    _coaxial(vs[vrow[k]], groups, x1, x3, True)
-    for q in range(nv):
-        x2[perm[q]] = x3[q]
-    _rotate_in(D, layout, x2, x1, False)
+    _rotated_coaxial(D, layout, vs[vrow[k]], perm, groups, x1, x1, x2, x3, True)
     for r in range(nv):
         out[r] += x1[r]
 
