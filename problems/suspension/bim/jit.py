@@ -12,7 +12,9 @@ from __future__ import annotations
 import types
 from collections.abc import Callable
 
-__all__ = ["variant"]
+from numba import njit
+
+__all__ = ["variant", "parallel_and_serial"]
 
 
 def variant(fn: Callable, suffix: str) -> Callable:
@@ -33,3 +35,10 @@ def variant(fn: Callable, suffix: str) -> Callable:
     copy.__doc__ = fn.__doc__
     copy.__module__ = fn.__module__
     return copy
+
+
+def parallel_and_serial(fn: Callable) -> tuple[Callable, Callable]:
+    """The parallel and the serial compiled build of ``fn`` (fastmath, cached on disk), the
+    serial one under its own name (:func:`variant`)."""
+    return (njit(parallel=True, fastmath=True, cache=True)(fn),
+            njit(fastmath=True, cache=True)(variant(fn, "serial")))

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from .harmonics import cross_gradient, derivatives, field_buffers, solid_harmonics, unit_field
-from .jit import variant
+from .jit import parallel_and_serial, variant
 
 __all__ = ["PARALLEL_WORK", "point_force_weight", "traction_expansion", "center_readout",
            "traction_response", "direct_traction_ranges", "direct_traction_ranges_serial",
@@ -333,14 +333,10 @@ def _synthesize_forces_impl(coef: np.ndarray, spheres: np.ndarray, BT: np.ndarra
 
 
 # Parallel and serial builds of the same loops (see PARALLEL_WORK).
-apply_blocks = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_impl)
-apply_blocks_serial = njit(fastmath=True, cache=True)(variant(_apply_blocks_impl, "serial"))
-apply_lowrank = njit(parallel=True, fastmath=True, cache=True)(_apply_lowrank_impl)
-apply_lowrank_serial = njit(fastmath=True, cache=True)(variant(_apply_lowrank_impl, "serial"))
-synthesize_forces = njit(parallel=True, fastmath=True, cache=True)(_synthesize_forces_impl)
-synthesize_forces_serial = njit(fastmath=True, cache=True)(variant(_synthesize_forces_impl, "serial"))
-direct_traction_ranges = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_ranges_impl)
-direct_traction_ranges_serial = njit(fastmath=True, cache=True)(variant(_direct_traction_ranges_impl, "serial"))
+apply_blocks, apply_blocks_serial = parallel_and_serial(_apply_blocks_impl)
+apply_lowrank, apply_lowrank_serial = parallel_and_serial(_apply_lowrank_impl)
+synthesize_forces, synthesize_forces_serial = parallel_and_serial(_synthesize_forces_impl)
+direct_traction_ranges, direct_traction_ranges_serial = parallel_and_serial(_direct_traction_ranges_impl)
 direct_traction_skip = njit(parallel=True, fastmath=False, cache=True)(variant(_direct_traction_ranges_impl, "exact"))
 
 

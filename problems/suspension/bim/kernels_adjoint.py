@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from .harmonics import derivatives, field_buffers, solid_harmonics
-from .jit import variant
+from .jit import parallel_and_serial, variant
 from .kernels import point_force_weight
 
 __all__ = ["unit_field_adjoint", "traction_expansion_adjoint", "center_readout_adjoint",
@@ -259,10 +259,7 @@ def _apply_blocks_both_impl(E: np.ndarray, tgt_ptr: np.ndarray, src: np.ndarray,
             out[i, a] += acc[a]
 
 
-direct_traction_adjoint = njit(parallel=True, fastmath=True, cache=True)(_direct_traction_adjoint_impl)
-direct_traction_adjoint_serial = njit(fastmath=True, cache=True)(variant(_direct_traction_adjoint_impl, "serial"))
+direct_traction_adjoint, direct_traction_adjoint_serial = parallel_and_serial(_direct_traction_adjoint_impl)
 direct_traction_adjoint_skip = njit(parallel=True, fastmath=False, cache=True)(variant(_direct_traction_adjoint_impl, "exact"))
-apply_blocks_adjoint = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_adjoint_impl)
-apply_blocks_adjoint_serial = njit(fastmath=True, cache=True)(variant(_apply_blocks_adjoint_impl, "serial"))
-apply_blocks_both = njit(parallel=True, fastmath=True, cache=True)(_apply_blocks_both_impl)
-apply_blocks_both_serial = njit(fastmath=True, cache=True)(variant(_apply_blocks_both_impl, "serial"))
+apply_blocks_adjoint, apply_blocks_adjoint_serial = parallel_and_serial(_apply_blocks_adjoint_impl)
+apply_blocks_both, apply_blocks_both_serial = parallel_and_serial(_apply_blocks_both_impl)

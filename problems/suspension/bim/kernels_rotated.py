@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit, prange
 
 from .coaxial import CoaxialTable, order_mask
-from .jit import variant
+from .jit import parallel_and_serial
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 
 __all__ = ["RotatedPairs", "FlyPairs", "PlanBlocks", "rotated_forward", "rotated_forward_serial", "rotated_transpose",
@@ -178,12 +178,9 @@ def _both(form, tptr, src, coef, acc, x, part):
             _pair_transpose(form, k, x[i], part[k], work)
 
 
-rotated_forward = njit(parallel=True, fastmath=True, cache=True)(_forward)
-rotated_forward_serial = njit(fastmath=True, cache=True)(variant(_forward, "serial"))
-rotated_transpose = njit(parallel=True, fastmath=True, cache=True)(_transpose)
-rotated_transpose_serial = njit(fastmath=True, cache=True)(variant(_transpose, "serial"))
-rotated_both = njit(parallel=True, fastmath=True, cache=True)(_both)
-rotated_both_serial = njit(fastmath=True, cache=True)(variant(_both, "serial"))
+rotated_forward, rotated_forward_serial = parallel_and_serial(_forward)
+rotated_transpose, rotated_transpose_serial = parallel_and_serial(_transpose)
+rotated_both, rotated_both_serial = parallel_and_serial(_both)
 
 
 def _order_major(pattern: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
