@@ -189,11 +189,13 @@ def test_modules_are_at_most_600_lines():
 
 
 def _compiled_names(tree: ast.AST) -> set[str]:
-    """Functions compiled by a call such as ``njit(parallel=True)(_kernel_impl)``."""
+    """Functions compiled by a call such as ``njit(parallel=True)(_kernel_impl)`` or
+    ``parallel_and_serial(_kernel_impl)`` (``bim/jit.py``, which calls ``njit``)."""
     out = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Call) \
-                and "jit" in ast.unparse(node.func.func):
+        if isinstance(node, ast.Call) and (
+                (isinstance(node.func, ast.Call) and "jit" in ast.unparse(node.func.func))
+                or (isinstance(node.func, ast.Name) and node.func.id == "parallel_and_serial")):
             out.update(a.id for a in node.args if isinstance(a, ast.Name))
     return out
 
