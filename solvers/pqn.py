@@ -25,7 +25,7 @@ Products of the iterate
 -----------------------
 ``products=iterate`` (default ``paper``) applies the high-fidelity operator to the
 new point ``x^ = x + p`` instead of the direction ``p`` and forms ``A p = A x^ - A x``
-by difference (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, where the
+by difference (:class:`~lcpbench.toolkit.pqn_products.IterateProducts`, where the
 accuracy argument is): the same number of products, but an operator with Krylov
 recycling (the boundary-integral mobility) solves products of converging inputs in
 few new directions. Bi-PQN's low products (the low start and the subproblems) are
@@ -33,7 +33,12 @@ then of points too, when the low's accuracy is declared or it is a matrix. Once 
 difference's error bound passes ``difference_tol`` of ``||A p||`` the solve goes
 back to products of ``p``; every convergence claim is confirmed by a counted
 product (of the final iterate: cheap with recycling). Measured in
-docs/benchmarks.md, "Products of the iterate".
+docs/benchmarks.md, "Products of the iterate". With ``relax > 0`` and an operator
+that makes products to a requested accuracy (``Operator.product_within``: the
+boundary-integral operators stop their Krylov solves earlier) the products of points
+are made only as accurately as the residual needs (inexact products;
+:class:`~lcpbench.toolkit.pqn_products.IterateProducts` has the accuracy argument),
+full accuracy again near the solution; claims are confirmed at full accuracy.
 
 Work outside products
 ---------------------
@@ -181,7 +186,10 @@ def _iterate_products(ctx: SolverContext, p: MonoOptions):
         return stop(z, G, always=True)
 
     confirmed.exact = stop.exact               # type: ignore[attr-defined]
-    return IterateProducts(ctx.b, acc.rtol, p.difference_tol), confirmed
+    within = with_current_blas_threads(ctx.A.product_within) if ctx.A.relaxable else None
+    ctx.info["relax"] = p.relax if within is not None else 0.0
+    return IterateProducts(ctx.b, acc.rtol, p.difference_tol, relax=p.relax,
+                           within=within), confirmed
 
 
 def _start(ctx: SolverContext):
@@ -266,6 +274,8 @@ def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
         low = ctx.low[names[0]]
         products.low_rtol = low.rtol if low.rtol is not None else (0.0 if low.explicit
                                                                    else None)
+        if low.relaxable:
+            products.low_within = with_current_blas_threads(low.product_within)
     floor = 0.1 * ctx.threshold
     rho = r_prev = None
     from_low = p.start == "low"

@@ -114,6 +114,15 @@ class Operator(LinearOperator):
         omitted it is the applications of the first counted product that made
         any (measured per operator copy, i.e. per solve); without ``work`` it is 1.
 
+    Looser products on request: when the wrapped operator has an attribute
+    ``at_accuracy`` (a callable ``rtol -> context manager`` inside which its products are
+    made to relative accuracy ``rtol``, e.g. an iterative solve stopped earlier; the
+    boundary-integral contact operators have one), :meth:`product_within` makes a counted
+    product to a requested accuracy looser than ``rtol``.  A solver asks for it where it
+    needs no more (inexact products); such a product counts as one MVP, its inner
+    applications are charged as any product's, and it is never reused as an accurate
+    product (:meth:`last_product`).
+
     Notes
     -----
     ``count`` is the number of MVPs (columns) applied, ``seconds`` the wall time
@@ -197,6 +206,9 @@ class Operator(LinearOperator):
         self.count = 0
         self.seconds = 0.0
         self.calls = 0
+        #: Counted products made to a looser accuracy (:meth:`product_within`).
+        self.loose = 0
+        self._loose_now = False
         self.nonfinite_at: Optional[int] = None
         self._guard: Optional[Callable[[Operator, int], None]] = None
         #: The largest machine epsilon of a product's output dtype narrower than float64
@@ -253,7 +265,7 @@ class Operator(LinearOperator):
         for kind, d in delta.items():
             self.applications_by_kind[kind] = self.applications_by_kind.get(kind, 0.0) + d
         total = sum(delta.values())
-        if self._first_apps is None and total > 0:
+        if self._first_apps is None and total > 0 and not self._loose_now:
             self._first_apps = total / k
 
     # ------------------------------------------------------------------ counting
@@ -279,8 +291,42 @@ class Operator(LinearOperator):
                                    f"{self.nonfinite_at}"
                                    + ("" if self.name == "high" else f" (operator {self.name!r})"))
         if X.ndim == 1:
-            self._last = (X.copy(), Y.copy())
+            self._last = None if self._loose_now else (X.copy(), Y.copy())
         return Y
+
+    @property
+    def relaxable(self) -> bool:
+        """True when products can be asked for a looser accuracy (:meth:`product_within`)."""
+        return callable(getattr(self._impl, "at_accuracy", None))
+
+    def product_within(self, x: np.ndarray, rtol: float) -> np.ndarray:
+        """``A x`` to relative accuracy ``rtol`` (``||error|| <= rtol ||A x||``), one counted MVP.
+
+        Looser than the operator's own accuracy only when the wrapped operator offers it
+        (:attr:`relaxable`) and ``rtol`` exceeds :attr:`rtol`; otherwise the ordinary
+        product.  The product is counted and charged its inner applications as any
+        other, is not remembered as the last product (the framework never confirms a
+        claim with it), and does not set :attr:`cold_applications`.
+
+        Raises
+        ------
+        ValueError
+            If ``rtol`` is not in (0, 1).
+        """
+        rtol = float(rtol)
+        if not (np.isfinite(rtol) and 0 < rtol < 1):
+            raise ValueError(f"operator {self.name!r}: a product's requested accuracy must be "
+                             f"in (0, 1), got {rtol}")
+        if not self.relaxable or rtol <= (self.rtol or 0.0):
+            return self._matvec(x)
+        self._loose_now = True
+        try:
+            with self._impl.at_accuracy(rtol):
+                y = self._matvec(x)
+            self.loose += 1
+        finally:
+            self._loose_now = False
+        return y
 
     def last_product(self, x: np.ndarray) -> Optional[np.ndarray]:
         """``A x`` if the last counted single-vector product was at exactly ``x``, else None."""

@@ -92,7 +92,7 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     low fidelity, and where each would cost a product with ``lows[0]``.
 
     ``products``: the outer level's high products are of the new point
-    (:class:`~lcpbench.toolkit.pqn_levels.IterateProducts`, ``products=iterate``),
+    (:class:`~lcpbench.toolkit.pqn_products.IterateProducts`, ``products=iterate``),
     also in its Mono-PQN fallback steps and after a handoff.
 
     Warm start (``warm_start=True``, the old start kept as ``start=high``):
@@ -115,9 +115,12 @@ def bi_level(apply: Callable[[np.ndarray], np.ndarray], lows: list, z: np.ndarra
     diag.set_pairs(list(older.S) + list(hi_pairs.S), list(older.Y) + list(hi_pairs.Y))
     st = _BiState(lows, diag, hi_pairs, state.get("inner"), rho=model_error,
                   r_prev=prev_residual, first=warm_start, floor=floor, adaptive=adaptive)
+    if products is not None:
+        products.model_error(model_error)
     if products is not None and products.low_rtol is not None and len(lows) == 1 \
             and state.get("Lx") is not None:
         st.Lx, st.Lx_err, st.low_rtol = state["Lx"], state["Lx_err"], products.low_rtol
+        st.relax, st.low_within = products.relax, products.low_within
     if model_error is not None and model_error > opts.model_tol:
         # judged useless before the first step: no low product to rebuild the model
         counters.decisions.append("mono:model")
@@ -168,6 +171,9 @@ class _BiState:
     Lx_err: float = 0.0
     low_rtol: Optional[float] = None
     inner_err: Optional[float] = None
+    #: loose low products (``relax``; ``low_within(v, rtol)``, None: the low has one accuracy)
+    relax: float = 0.0
+    low_within: Optional[Callable] = None
 
     @property
     def base(self) -> Callable:
@@ -222,6 +228,7 @@ def _outer_direction(task: LevelTask, st: _BiState, z: np.ndarray, G: np.ndarray
     counters.inner_iterations += inner.iterations
     if sub is not None:
         counters.low_iterate_products += sub.made
+        counters.low_loose_products += len(sub.loose)
         st.inner_err = sub.error
     p = inner.z - z
     Bp = inner.G - G
@@ -251,8 +258,11 @@ def _low_points(st: _BiState, model: OperatorBFGS, x: np.ndarray, g: np.ndarray,
     def known(zz, GG):
         return GG + shift - model.correction(zz - x)
 
-    return IterateProducts(None, st.low_rtol, opts.difference_tol, base=st.base, known=known,
-                           correction=model.correction, error=st.Lx_err, n=x.shape[0])
+    sub = IterateProducts(None, st.low_rtol, opts.difference_tol, base=st.base, known=known,
+                          correction=model.correction, error=st.Lx_err, n=x.shape[0],
+                          relax=st.relax, within=st.low_within)
+    sub.model_error(st.rho)     # B p from the inner gradients feeds the outer model check
+    return sub
 
 
 def _update_models(task: LevelTask, st: _BiState, step: _Step, inner_new) -> None:
@@ -276,6 +286,8 @@ def _update_models(task: LevelTask, st: _BiState, step: _Step, inner_new) -> Non
     # the model check: the new high gradient is known; how well did B predict it?
     st.rho = model_check(step.Qp, b0p + corr)
     counters.model_errors.append(st.rho)
+    if task.products is not None:
+        task.products.model_error(st.rho)
     model = _copy_model(old_model)
     uv = model.update(s, y, Bs)
     if uv is None:
@@ -346,7 +358,8 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
 
     sub = None
     if products is not None and products.low_rtol is not None and len(lows) == 1:
-        sub = IterateProducts(b, products.low_rtol, opts.difference_tol)
+        sub = IterateProducts(b, products.low_rtol, opts.difference_tol, relax=products.relax,
+                              within=products.low_within)
     with np.errstate(over="ignore", invalid="ignore"):
         out, inner_state = _solve_sub(LevelTask(L, stop, opts.warm_max_iter, opts, counters,
                                                 products=sub), lows, z, Gl, None)
@@ -365,6 +378,7 @@ def low_start(lows: list, z: np.ndarray, b: np.ndarray, opts: BiOptions, counter
              "inner": inner_state, "model": OperatorBFGS(L, z.shape[0])}
     if sub is not None:             # L z1 for the subproblems' products of points
         counters.low_iterate_products += sub.made
+        counters.low_loose_products += len(sub.loose)
         state["Lx"] = Lz
         state["Lx_err"] = sub.error if sub.error is not None else \
             sub.rtol * float(np.linalg.norm(Lz))

@@ -29,6 +29,7 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 
 from lcpbench.core.specs import Bounds, CheckedParams
+from lcpbench.toolkit.pqn_products import IterateProducts
 from lcpbench.toolkit.prox import compact_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Pairs, Rank2
 from lcpbench.toolkit.steps import exact_step, feasible_step_bound
@@ -89,6 +90,14 @@ class MonoOptions(CheckedParams):
         bound is a worst case; on a 27-sphere lattice at p = 6 a limit of 0.1 switched
         to directions two products before convergence (143 inner applications
         against 127 with 0.5 or 0.9, the same MVPs).
+    relax : float
+        ``products=iterate`` with an operator that makes products to a requested
+        accuracy (:meth:`lcpbench.core.operator.Operator.product_within`; the
+        boundary-integral contact operator stops its Krylov solve earlier): the
+        product of a point may carry an error up to ``relax`` times the current
+        natural residual (:class:`IterateProducts`, where the accuracy argument is).
+        0 (default): every product at the operator's full accuracy, the paper's. Claims
+        are confirmed at full accuracy either way.
     """
 
     memory: Annotated[int, Bounds(ge=0)] = 0              # 0 keeps every pair
@@ -100,6 +109,7 @@ class MonoOptions(CheckedParams):
     free_pair: bool = True
     products: Literal["paper", "iterate"] = "paper"
     difference_tol: Annotated[float, Bounds(gt=0, lt=1)] = 0.5
+    relax: Annotated[float, Bounds(ge=0, lt=1)] = 0.0
 
 
 @dataclass(frozen=True)
@@ -179,6 +189,7 @@ class Counters:
     recomputes: int = 0
     inner_iterations: int = 0
     low_iterate_products: int = 0     # products=iterate: low products of points
+    low_loose_products: int = 0       # relax > 0: low products made to a looser accuracy
     skipped_pairs: int = 0
     abandoned_low: bool = False
     model_errors: list = field(default_factory=list)
@@ -256,124 +267,6 @@ def optimal_step(z: np.ndarray, G: np.ndarray, p: np.ndarray, Qp: np.ndarray
     return z_new, G + eta * Qp, eta
 
 
-class IterateProducts:
-    """``A p`` as ``A (x + p) - A x``: the product of the new point, not of the direction.
-
-    PQN's product of an iteration is ``A p`` for the step ``p = x^ - x`` to the prox
-    point ``x^``. An operator that is an iterative solve with Krylov recycling
-    (the boundary-integral mobility) solves a product whose input is close to
-    earlier inputs in few new directions; the directions ``p`` are new each
-    iteration, the points ``x^`` converge. So the product is applied to ``x^``
-    and ``A p = A x^ - A x``, ``A x`` being known (``G - b`` at the top level): one
-    product per iteration as before.
-
-    Accuracy. A product of an operator of relative accuracy ``rtol`` (its declared
-    ``Operator(rtol=)``, or the framework's measurement; at least ``16 eps sqrt(n)``
-    for rounding) is off by up to ``rtol ||A v||``. ``A x^`` carries such an error,
-    and the known ``A x`` carries ``e_x``: after a step ``x+ = x + eta p``, ``A x+ =
-    (1 - eta) A x + eta A x^``, so ``e_x+ = |1 - eta| e_x + eta rtol ||A x^||``
-    (tracked, :meth:`stepped`; about one product's error while ``eta <= 2``). The
-    difference is off by up to ``e = rtol ||A x^|| + e_x``, while a product of
-    ``p`` is off by ``rtol ||A p||``: relative to ``||A p||`` the difference's
-    error ``e / ||A p||`` grows as the iterates converge (``p -> 0`` while ``A x``
-    does not). The step length and the secant pair ``(eta p, eta A p)`` tolerate a
-    small relative error (the model only preconditions; each step is measured along
-    ``p``; the gradient ``G + eta A p = (1 - eta) A x + eta A x^ + b`` is as accurate
-    as a product of the iterate whatever the difference's error), so the difference is
-    used while ``e <= difference_tol ||A p||``. Once it
-    exceeds a tenth of that, the next step's would likely exceed it all: products of
-    ``p`` are made from the next iteration on (``switched``: the products of points
-    made until then). A difference already beyond ``difference_tol`` is replaced by
-    a product of ``p`` (one extra product, counted in ``direct``). The solver
-    confirms every convergence claim with a counted product.
-
-    Parameters
-    ----------
-    b : ndarray or None
-        The linear term: the known ``A x`` is ``G - b`` (ignored with ``known``).
-    rtol : float
-        Relative accuracy of one product.
-    tol : float
-        ``difference_tol``.
-    base : callable, optional
-        The operator applied to the point (default: the level's product).
-    known : callable, optional
-        ``known(x, G)``: ``base x`` at the level's iterate (default ``G - b``).
-    correction : callable, optional
-        Added to the difference: the level's product is ``base + correction`` (the
-        Bi-PQN subproblem's ``B = A_low + U U' - V V'``, whose low-rank part is exact).
-    error : float, optional
-        Error bound of the first ``known`` (default ``rtol ||A x||``).
-    low_rtol : float, optional
-        The top level's note for Bi-PQN: the low fidelity's accuracy when its
-        products may be of points too (None: they are of directions).
-    """
-
-    def __init__(self, b: Optional[np.ndarray], rtol: float, tol: float, *,
-                 base: Optional[Callable] = None, known: Optional[Callable] = None,
-                 correction: Optional[Callable] = None, error: Optional[float] = None,
-                 low_rtol: Optional[float] = None, n: Optional[int] = None):
-        size = n if n is not None else (b.shape[0] if b is not None else 1)
-        self.b, self.tol = b, tol
-        self.rtol = max(float(rtol), 16 * np.finfo(float).eps * np.sqrt(max(size, 1)))
-        self.base, self.known, self.correction = base, known, correction
-        self.error = error            # bound on the error of the known A x (None: rtol ||A x||)
-        self.low_rtol = low_rtol
-        self.on = True
-        self.made = 0                 # products of points
-        self.direct = 0               # differences replaced by a product of p
-        self.switched: Optional[int] = None   # products of points made before the switch
-        self.errors: list = []        # e / ||A p|| of each difference
-        self._last: Optional[float] = None    # rtol ||A x^|| (or ||Q p||) of the last product
-        self._point = False                   # the last product was of a point
-
-    def __call__(self, apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray
-                 ) -> np.ndarray:
-        """``Q p`` for the step from ``z`` (gradient ``G``) along ``p``."""
-        if not self.on:
-            return self._direct(apply, p)
-        Az = self.known(z, G) if self.known is not None else G - self.b
-        Ax_hat = (self.base or apply)(z + p)
-        Ap = Ax_hat - Az
-        self.made += 1
-        if self.error is None:
-            self.error = self.rtol * float(np.linalg.norm(Az))
-        self._last = self.rtol * float(np.linalg.norm(Ax_hat))
-        size = float(np.linalg.norm(Ap))
-        rel = (self._last + self.error) / size if size > 0 else float("inf")
-        self.errors.append(rel)
-        if not rel <= 0.1 * self.tol:
-            self.on, self.switched = False, self.made
-        if not rel <= self.tol:
-            self.direct += 1
-            return self._direct(apply, p)
-        self._point = True
-        return Ap + self.correction(p) if self.correction is not None else Ap
-
-    def _direct(self, apply: Callable, p: np.ndarray) -> np.ndarray:
-        """The paper's product ``Q p`` (its error ``rtol ||Q p||`` kept for :meth:`stepped`)."""
-        Qp = apply(p)
-        self._point, self._last = False, self.rtol * float(np.linalg.norm(Qp))
-        return Qp
-
-    def stepped(self, eta: float) -> None:
-        """The step ``x + eta p`` was taken: the known ``A x``'s error bound follows."""
-        if self.error is None or self._last is None:
-            return
-        if self._point:      # A x+ = (1 - eta) A x + eta A x^
-            self.error = abs(1.0 - eta) * self.error + eta * self._last
-        else:                # A x+ = A x + eta A p
-            self.error += eta * self._last
-
-    def restart(self) -> None:
-        """The gradient was recomputed by a product of the iterate."""
-        self.error = None
-
-    def as_dict(self) -> dict:
-        return {"iterate_products": self.made, "iterate_direct": self.direct,
-                "iterate_switched": self.switched, "iterate_errors": list(self.errors)}
-
-
 def _step_along(task: LevelTask, z: np.ndarray, G: np.ndarray, p: Optional[np.ndarray]):
     """One product ``Q p`` and the step of :func:`optimal_step` along ``p``.
 
@@ -384,6 +277,8 @@ def _step_along(task: LevelTask, z: np.ndarray, G: np.ndarray, p: Optional[np.nd
     if p is None:
         return None, "stationary", None
     Qp = task.apply(p) if task.products is None else task.products(task.apply, z, G, p)
+    if task.products is not None and task.products.fresh is not None:
+        G, task.products.fresh = task.products.fresh, None     # A x refreshed (loose products)
     z_new, G_new, eta = optimal_step(z, G, p, Qp)
     if z_new is None:
         return None, "unbounded", (p, Qp)

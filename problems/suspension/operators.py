@@ -12,6 +12,8 @@ solve per product (in one call when the mobility makes both together,
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Optional
 
 import numpy as np
@@ -40,6 +42,11 @@ def _forward_and_adjoint(M: LinearOperator, f: np.ndarray) -> tuple[np.ndarray, 
             np.asarray(ua, dtype=np.float64).reshape(-1))
 
 
+def _accuracy_hook(M: LinearOperator):
+    """The mobility's ``at_accuracy(rtol)`` context (looser solves on request), or None."""
+    return getattr(M, "at_accuracy", None)
+
+
 def _symmetrized(M: LinearOperator, D: sp.csc_matrix, Dt: sp.csr_matrix, v: np.ndarray,
                  forward: Optional[np.ndarray] = None) -> np.ndarray:
     """``D' (M + M') D v / 2``: the explicitly symmetrised contact operator (one forward
@@ -66,6 +73,9 @@ def contact_product(M: LinearOperator, D: sp.csc_matrix, symmetrize: bool) -> Li
     # a mobility that keeps Krylov directions offers products at a first product's cost
     # (BimMobility.cold_products): what a timing of this low's cost must use
     op.cold_products = getattr(M, "cold_products", None)
+    # an iterative mobility offers products to a looser accuracy (the hook
+    # lcpbench.Operator.product_within uses)
+    op.at_accuracy = _accuracy_hook(M)
     return op
 
 
@@ -97,6 +107,23 @@ class ContactOperator:
         self._size = cache
         self.symmetrize = bool(symmetrize)
         self.solves = 0
+        self._loose = 0                  # > 0 inside at_accuracy: products are not cached
+
+    @contextlib.contextmanager
+    def at_accuracy(self, rtol: float) -> Iterator[None]:
+        """Products made inside are solved to relative accuracy ``rtol`` (the mobility's
+        ``at_accuracy``) and kept out of the cache, so that the position update never
+        uses a loose product.  ``TypeError`` for a mobility without that hook."""
+        hook = _accuracy_hook(self.M)
+        if hook is None:
+            raise TypeError(f"{type(self.M).__name__} has no at_accuracy(rtol): its products "
+                            "have one accuracy")
+        self._loose += 1
+        try:
+            with hook(rtol):
+                yield
+        finally:
+            self._loose -= 1
 
     def _cached(self, v: np.ndarray) -> Optional[np.ndarray]:
         for key, u in reversed(self._cache):
@@ -105,6 +132,8 @@ class ContactOperator:
         return None
 
     def _remember(self, v: np.ndarray, u: np.ndarray) -> None:
+        if self._loose:
+            return
         self._cache.append((v.copy(), u))
         del self._cache[:-self._size]
 
@@ -138,8 +167,10 @@ class ContactOperator:
 
     def operator(self) -> LinearOperator:
         """The contact operator as a symmetric ``LinearOperator`` (n, n); its
-        ``cold_products`` is the mobility's (as :func:`contact_product`'s)."""
+        ``cold_products`` is the mobility's (as :func:`contact_product`'s), and so is
+        ``at_accuracy`` (None when the mobility has one accuracy)."""
         n = self.D.shape[1]
         op = LinearOperator((n, n), matvec=self.matvec, rmatvec=self.matvec, dtype=np.float64)
         op.cold_products = getattr(self.M, "cold_products", None)
+        op.at_accuracy = self.at_accuracy if _accuracy_hook(self.M) is not None else None
         return op

@@ -219,6 +219,7 @@ class BimMobility(LinearOperator):
         super().__init__(dtype=np.float64, shape=(6 * setup.M, 6 * setup.M))
         self.setup, self.near = setup, near
         self.eps_gmres = float(eps_gmres)
+        self._relaxed: float | None = None     # a looser tolerance asked by at_accuracy
         self.on_failure, self.maxiter = on_failure, int(maxiter)
         self.recycle = max(int(recycle), 0)
         self.krylov = krylov
@@ -299,6 +300,34 @@ class BimMobility(LinearOperator):
             yield
         finally:
             self._recycler, self._adj_recycler = saved
+
+    @property
+    def solve_tol(self) -> float:
+        """The tolerance the next solve stops at: ``eps_gmres``, or the looser one asked
+        inside :meth:`at_accuracy`."""
+        return self.eps_gmres if self._relaxed is None else self._relaxed
+
+    @contextlib.contextmanager
+    def at_accuracy(self, rtol: float) -> Iterator[None]:
+        """Products made inside stop their solves at relative residual ``rtol`` instead of
+        ``eps_gmres`` (never tighter: ``max(rtol, eps_gmres)``).
+
+        For a solver that needs a product only to a known accuracy (inexact products,
+        :class:`lcpbench.toolkit.pqn_levels.IterateProducts`): the solve stops earlier,
+        the directions it adds to the recycled spaces are exact images, so later products
+        at full accuracy lose nothing.  The quadrature stays that of ``eps_gmres``.
+
+        Raises
+        ------
+        ValueError
+            If ``rtol`` is not in (0, 1).
+        """
+        tol = max(check_tolerance(rtol), self.eps_gmres)
+        saved, self._relaxed = self._relaxed, tol
+        try:
+            yield
+        finally:
+            self._relaxed = saved
 
     def work_counts(self) -> dict[str, int]:
         """Inner applications made so far: ``{"forward": .., "adjoint": ..}``, the sums of
@@ -397,7 +426,7 @@ class BimMobility(LinearOperator):
         ``maxiter``); records the iterations and the full-accuracy residual in ``records``
         and reports non-convergence (:meth:`_report`)."""
         restart = max(1, min(b.size, 60, self.maxiter))
-        x, its, res = relaxed_gmres(operator, b, start, self.eps_gmres, restart, self.maxiter,
+        x, its, res = relaxed_gmres(operator, b, start, self.solve_tol, restart, self.maxiter,
                                     rungs=rungs, step=RELAX_STEP)
         self._record(what, its, res, records)
         return x
@@ -409,7 +438,7 @@ class BimMobility(LinearOperator):
         (from the guess ``x0``); records the products made and the true residual, and
         reports non-convergence (:meth:`_report`)."""
         before = solver.products
-        y, _new, res = solver.solve(b, self.eps_gmres, self.maxiter, x0=x0)
+        y, _new, res = solver.solve(b, self.solve_tol, self.maxiter, x0=x0)
         self._record(what, solver.products - before, res, records)
         return y
 
@@ -422,10 +451,10 @@ class BimMobility(LinearOperator):
     def _report(self, what: str, res: float, its: int) -> None:
         """Warn (or raise, ``on_failure="raise"``) when a solve's full-accuracy relative
         residual ``res`` missed ``eps_gmres``."""
-        if res <= self.eps_gmres:
+        if res <= self.solve_tol:
             return
         msg = (f"{what} did not converge: relative residual {res:.3g} after {its} "
-               f"iterations (eps_gmres = {self.eps_gmres:g}, M = {self.M}, p = {self.p}); "
+               f"iterations (eps_gmres = {self.solve_tol:g}, M = {self.M}, p = {self.p}); "
                "raise maxiter or eps_gmres, or check for near-contact spheres")
         if self.on_failure == "raise":
             raise RuntimeError(msg)
@@ -546,7 +575,7 @@ class BimMobility(LinearOperator):
 
         before = (fwd.products, adj.products)
         (yf, _, rf), (wa, _, ra) = solve_together([(fwd, b), (adj, z)], apply_many,
-                                                  self.eps_gmres, self.maxiter)
+                                                  self.solve_tol, self.maxiter)
         self._record("BIM GMRES", fwd.products - before[0], rf,
                      (self.gmres_iterations, self.residuals))
         self._record("BIM adjoint GMRES", adj.products - before[1], ra,
