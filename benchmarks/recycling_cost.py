@@ -24,7 +24,8 @@ BB-PGD's E-MVPs, app_cost and CPU seconds over the solver's (above 1: the solver
 faster). The last column says whether the app_cost ratio predicts the CPU time ratio
 within 20 %. ``--repeat`` solves each solver that many times, each on a fresh build, and
 keeps the solve of median CPU time. ``products=iterate`` is PQN's product of the new
-point (docs/benchmarks.md, "Products of the iterate").
+point (docs/benchmarks.md, "Products of the iterate"), ``relax`` its loose products
+("Loose products"). ``--per-product`` prints each solver's applications per product.
 """
 
 from __future__ import annotations
@@ -69,7 +70,10 @@ def solve_one(scene, p: int, low: str, solver: str, tol: float) -> dict:
             "app_cost": res.app_cost, "wall": res.time_s, "time": cpu, "build": build,
             "switched": res.info.get("iterate_switched"), "kkt": res.verified_kkt_abs,
             "points": res.info.get("iterate_products", 0) + res.info.get("low_iterate_products",
-                                                                           0)}
+                                                                           0),
+            # the high mobility's GMRES/GCR applications per solve, the step's non-collisional
+            # solve first (made while building), then one entry per product of the solve
+            "sequence": list(getattr(prob.mobility, "gmres_iterations", []))}
 
 
 def ratio_cells(base: dict, r: dict, clock: str = "time") -> str:
@@ -97,6 +101,9 @@ def main() -> None:
                          "wall clock mostly measures waiting for a core) or wall (an idle "
                          "machine: the compiled kernels' threads make a parallel product's "
                          "CPU seconds exceed its wall seconds, a serial one's not)")
+    ap.add_argument("--per-product", action="store_true",
+                    help="after the table, each solver's high applications per product (forward "
+                         "solves; the first entry is the step's non-collisional solve)")
     args = ap.parse_args()
     clock = "time" if args.clock == "cpu" else "wall"
     print("| M | n | solver | status | solved | high | low | E-MVPs | applications (high; low) "
@@ -104,6 +111,7 @@ def main() -> None:
           "(switched after) | E-MVPs ratio | app_cost ratio "
           f"| {args.clock} time ratio | app_cost predicts time (20%) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    sequences = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for m in args.m:
@@ -120,6 +128,12 @@ def main() -> None:
                       f"{r['app_cost']:.2f} | {r['time']:.2f} | {r['wall']:.2f} | "
                       f"{r['build']:.1f} | {sw} | "
                       f"{ratio_cells(base, r, clock)} |", flush=True)
+                sequences.append((m ** 3, r["solver"], r["sequence"]))
+    if args.per_product:
+        print("\n| M | solver | high applications per forward solve (non-collisional first) |")
+        print("|---|---|---|")
+        for M, solver, seq in sequences:
+            print(f"| {M} | {solver} | {' '.join(str(k) for k in seq)} |")
 
 
 if __name__ == "__main__":
