@@ -50,7 +50,8 @@ previous one's model corrected by the rank-two change of ``B``. Per iteration th
 are swept once by the pair update (the new Gram rows; the two-loop's ``W g`` follows
 from them by the recurrence ``g + y``), once to form the quasi-Newton point with the
 prox's start (:func:`~lcpbench.toolkit.prox.shifted_point`) and once per Newton step
-of the prox; the secant memory handed back
+of the prox, whose first step tries the previous prox's active set (one step when it is
+still right: :func:`~lcpbench.toolkit.prox.compact_prox`); the secant memory handed back
 is one copy of the pairs' rows. The solvers' own dense
 algebra runs with BLAS on one thread, entered once per solve; the products (the LCP's
 operators) run with the thread counts in force when the solve began.

@@ -156,7 +156,9 @@ def test_prox_sequence_with_kept_active_set_equals_the_old_prox(seed):
         U, V = _old_factors(S[:k + 1], Y[:k + 1], d)
         z_old, its = _old_prox(y, d, U, V)
         assert _rel(z, z_old) < 1e-10
-        assert info.newton_iters == its and not info.fallback
+        # the active-set predictor (the previous prox's set) may cost passes here, where the
+        # points are unrelated; on real solves it saves them (test_shipped_set_... below)
+        assert info.newton_iters <= its + 3 and not info.fallback
         mask = model.active.mask                 # the carried Gram is the active set's
         np.testing.assert_allclose(model.active.gram, (W * mask) @ W.T, rtol=0, atol=1e-10
                                    * np.max(np.abs(G)))
@@ -232,7 +234,8 @@ def _instances(spec):
 
 
 #: Recorded with the code before the change (commit 10429ac): MVPs, low MVPs, iterations,
-#: prox Newton iterations, support of x and sum(x), x.x, x.k, x.cos(k) (k = 1..n).
+#: prox Newton iterations, support of x and sum(x), x.x, x.k, x.cos(k) (k = 1..n). The prox
+#: Newton iterations since its active-set predictor are NEWTON's (same roots, fewer passes).
 OLD = [
     ("set-lattice-bim-m3:instances=0", "mono-pqn", 8, 0, 7, 15,
      [0, 1, 2, 6, 7, 8, 9, 15, 16, 17, 33, 34, 39, 42],
@@ -256,7 +259,13 @@ OLD = [
 ]
 
 
-@pytest.mark.parametrize("spec,solver,mvps,lofi,iters,newton,support,fp", OLD,
+#: Prox Newton iterations with the active-set predictor (``_NewtonSystem._predicted``), per
+#: row of OLD; before it 15, 22, 18, 20, 100 and 28.
+NEWTON = [8, 13, 10, 12, 85, 13]
+
+
+@pytest.mark.parametrize("spec,solver,mvps,lofi,iters,newton,support,fp",
+                         [c[:5] + (k,) + c[6:] for c, k in zip(OLD, NEWTON)],
                          ids=[f"{c[0].split(':')[0]}-{c[1]}" for c in OLD])
 def test_shipped_set_iterates_as_before(spec, solver, mvps, lofi, iters, newton, support, fp):
     r = lcpbench.solve(_instances(spec)[0], solver=solver, tol=1e-8)

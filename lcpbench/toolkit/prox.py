@@ -63,6 +63,9 @@ class ProxInfo:
         Semi-smooth Newton iterations.
     damped : int
         Newton steps that had to be damped.
+    predictor_rejected : int
+        Steps taken with the previous evaluation's active set that did not reduce the
+        residual (each one pass over ``W`` spent; :meth:`_NewtonSystem._predicted`).
     fallback : bool
         True when Newton did not converge and the projected-gradient fallback
         produced the answer.
@@ -72,6 +75,7 @@ class ProxInfo:
 
     newton_iters: int = 0
     damped: int = 0
+    predictor_rejected: int = 0
     fallback: bool = False
     residual: float = float("nan")
 
@@ -128,6 +132,13 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     activity changed from one Newton step to the next. A Newton step (and
     each damping trial) costs one pass over ``W`` (``t = y + D^-1 W' c``) plus
     ``O(k m^2 + m^3)`` for ``k`` changed rows; no ``n x m`` array is copied.
+    With ``active`` the first step is taken with the previous evaluation's
+    active set (an active-set predictor, lcpbench's addition: the root problem
+    is piecewise linear, so once the set is right one step lands on the root,
+    and consecutive proxes of a solve mostly share it); it is kept when it
+    reduces the residual, else the iteration starts from 0. The root is the
+    same; on the shipped sets the Newton passes fell by 15-55%
+    (docs/benchmarks.md, "PQN work outside products, third round").
     BLAS threads are the caller's business (:mod:`lcpbench.toolkit.blas`).
 
     Parameters
@@ -377,12 +388,51 @@ class _NewtonSystem:
         return J
 
     # ------------------------------------------------------------------ Newton
+    def _predicted(self, a, res, act, cache: ActiveGram, info: ProxInfo):
+        """The Newton step taken with the previous evaluation's active set ``mask`` instead
+        of the one at ``a = 0`` (an active-set predictor).
+
+        The root problem is piecewise linear: with its final active set known, one
+        Newton step from anywhere lands on the root. Consecutive proxes of a PQN solve
+        mostly share that set, so the step is taken with it first; it is kept when its
+        true residual (at the point it reaches, with that point's own active set)
+        decreases as the damped Newton iteration requires, else the iteration starts
+        from ``a = 0`` as without it (one pass over ``W`` spent, counted in
+        ``newton_iters``). The root, hence the prox point, is the same either way.
+        Returns ``(step length, a, L, t, res, act)`` for an accepted step, else None.
+        """
+        mask, cache_gram, cache_flips = cache.mask, cache.gram, cache.flips
+        flip = np.flatnonzero(mask != act[0])
+        if not flip.size:
+            return None                 # the same set as at a = 0: the plain Newton step
+        # the cached set's own Gram matrix; W Lam y from the one at a = 0 by the flipped rows
+        on, off = flip[mask[flip]], flip[~mask[flip]]
+        h = act[2] + self.W[:, on] @ self.y[on] - self.W[:, off] @ self.y[off]
+        guess = (mask, cache_gram, h, cache_flips)
+        Lg = self.residual(a, np.zeros(self.W.shape[0]), guess)
+        J = self.jacobian(guess)
+        try:
+            step = -np.linalg.solve(J, Lg)
+        except np.linalg.LinAlgError:
+            return None
+        info.newton_iters += 1
+        a_new = a + step
+        t_new, c = self.point(a_new)
+        act_new = self.masked(t_new > 0, guess)
+        L_new = self.residual(a_new, c, act_new)
+        r_new = np.linalg.norm(L_new)
+        if not r_new <= (1 - 1e-4) * res:
+            info.predictor_rejected += 1
+            return None
+        return float(np.linalg.norm(step)), a_new, L_new, t_new, r_new, act_new
+
     def solve(self, tol: float, max_iter: int, info: ProxInfo,
               cache: Optional[ActiveGram] = None, products: Optional[np.ndarray] = None):
         """Semi-smooth Newton from 0 with halving; ``(t, converged)`` at the last root.
 
         ``cache`` (scalar ``d`` only) starts the active-set Gram matrix and
-        receives the last one.
+        receives the last one; its active set also gives the first step
+        (:meth:`_predicted`), when that step reduces the residual.
         """
         y = self.y
         a = np.zeros(self.r1 + self.Qc.shape[1])
@@ -391,8 +441,15 @@ class _NewtonSystem:
         Lv = self.residual(a, np.zeros(self.W.shape[0]), act)
         scale = 1.0 + np.linalg.norm(y)
         res = np.linalg.norm(Lv)
-        converged = res <= tol * scale
-        while not converged and info.newton_iters < max_iter:
+        converged = done = res <= tol * scale
+        if not done and cache is not None and self.scalar and \
+                cache.gram.shape == self.G.shape and cache.mask.shape == y.shape:
+            guess = self._predicted(a, res, act, cache, info)
+            if guess is not None:
+                delta, a, Lv, t, res, act = guess
+                done = res <= tol * scale or delta <= tol * (1.0 + np.linalg.norm(a))
+                converged = done and res <= np.sqrt(tol) * scale
+        while not done and info.newton_iters < max_iter:
             info.newton_iters += 1
             J = self.jacobian(act)
             try:
