@@ -164,6 +164,31 @@ def test_prox_sequence_with_kept_active_set_equals_the_old_prox(seed):
                                    * np.max(np.abs(G)))
 
 
+def test_prox_starts_from_the_previous_active_set():
+    """A prox of a slightly moved point, whose active set is the previous prox's: one Newton
+    pass (the predicted step lands on the root), the same point as a cold start, which needs
+    more passes; a point with another active set still gets its exact prox."""
+    rng = np.random.default_rng(4)
+    n = 80
+    A, S, Y = _pairs(rng, n, 8, cond=1e2)
+    model = DiagonalBFGS(n)
+    for k in range(8):
+        model.add_pair(S[k], Y[k])
+    d, W, P, N, G = model.compact()
+    y = rng.standard_normal(n) * 2
+    z0, info0 = compact_prox(y, d, W, P, N, G, active=model.active)
+    assert info0.newton_iters >= 2                # cold: the active set at y is wrong
+    y1 = y + 1e-6 * rng.standard_normal(n)
+    z1, info1 = compact_prox(y1, d, W, P, N, G, active=model.active)
+    cold, cold_info = compact_prox(y1, d, W, P, N, G)
+    assert info1.newton_iters == 1 and cold_info.newton_iters >= 2
+    assert _rel(z1, cold) < 1e-12
+    y2 = -y                                       # another active set: the predictor misses
+    z2, _ = compact_prox(y2, d, W, P, N, G, active=model.active)
+    U, V = _old_factors(S, Y, d)
+    assert _rel(z2, _old_prox(y2, d, U, V)[0]) < 1e-10
+
+
 def test_rank_two_correction_equals_corrected_pairs_rebuilt():
     """The carried inner model corrected in place = a model rebuilt from Y + (uu' - vv') S."""
     rng = np.random.default_rng(3)
