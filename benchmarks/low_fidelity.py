@@ -26,7 +26,8 @@ import numpy as np
 from common import packed_lattice
 
 import lcpbench
-from lcpbench.core.operator import dense_uncounted, measure_cost
+from lcpbench.core.operator import dense_uncounted
+from lcpbench.core.probes import measure_cost
 from lcpbench.problems.suspension.problem import build_contact_problem
 
 DEFAULT_LOWS = ["p3e6", "p4e6", "p6e6", "p4", "p6", "p8e3", "p8e4", "p8e5", "rpy"]

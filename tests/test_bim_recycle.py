@@ -149,7 +149,8 @@ def test_measure_cost_times_every_repeat_cold_on_a_new_vector():
 
     from scipy.sparse.linalg import LinearOperator
 
-    from lcpbench.core.operator import Operator, measure_cost
+    from lcpbench.core.operator import Operator
+    from lcpbench.core.probes import measure_cost
 
     seen, state = [], {"cold": 0, "inside": False}
 

@@ -89,7 +89,7 @@ def test_declared_accuracy_loosens_the_stop_test_and_converges():
 
 
 def test_measured_accuracy_of_the_kinds():
-    from lcpbench.core.operator import measure_accuracy
+    from lcpbench.core.probes import measure_accuracy
 
     rng = np.random.default_rng(0)
     A = random_spd_matrix(rng, 30, 1e2)

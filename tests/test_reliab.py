@@ -12,7 +12,7 @@ from scipy.sparse.linalg import LinearOperator
 
 import lcpbench
 from lcpbench import LCP, Operator, register_solver
-from lcpbench.core.operator import ACCURACY_PROBES
+from lcpbench.core.probes import ACCURACY_PROBES
 from lcpbench.core.result import Status
 from lcpbench.problems.inexact import inexact_lcp
 from lcpbench.problems.infeasible import infeasible_lcp, unbounded_lcp

@@ -38,7 +38,8 @@ from typing import Optional
 import numpy as np
 
 from lcpbench.core.context import SolverContext
-from lcpbench.core.operator import BudgetExhausted, apply_uncounted, safe_norm
+from lcpbench.core.operator import BudgetExhausted, apply_uncounted
+from lcpbench.core.probes import safe_norm
 from lcpbench.core.residuals import kkt_abs
 from lcpbench.core.result import SolveResult, Status
 

@@ -30,14 +30,8 @@ import pandas as pd
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import (
-    Accuracy,
-    BudgetExhausted,
-    Operator,
-    apply_uncounted,
-    measure_accuracy,
-    safe_norm,
-)
+from lcpbench.core.operator import BudgetExhausted, Operator, apply_uncounted
+from lcpbench.core.probes import Accuracy, measure_accuracy, safe_norm
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
@@ -222,7 +216,7 @@ class SolverContext:
     def operator_accuracy(self) -> Accuracy:
         """The high operator's accuracy: declared, explicit, or measured once per solve.
 
-        Measured by :func:`~lcpbench.core.operator.measure_accuracy` on the
+        Measured by :func:`~lcpbench.core.probes.measure_accuracy` on the
         framework's uncounted path the first time it is asked for (no counted
         product, and the probe's time is not charged to the solver); a float64
         matrix or a declared ``rtol`` costs nothing. Recorded in ``info``

@@ -13,7 +13,7 @@ chosen step the instance is written to an HDF5 set (layout of
   forces carried by pair identity), when there is one;
 * ``low/<name>/A`` for every requested fidelity, formed and symmetrised the
   same way, with ``cost_ratio = t_low / t_high`` (seconds per MVP measured on
-  this instance with :func:`~lcpbench.core.operator.measure_cost`)
+  this instance with :func:`~lcpbench.core.probes.measure_cost`)
   and the fidelity knobs (``model``, ``p``, ``eps_gmres``, ``t_mvp``);
 * ``reference``: the consensus of the QP solvers (:func:`lcpbench.reference`)
   on the dense ``A``, with its ``accepted`` flag;
@@ -67,7 +67,8 @@ from lcpbench import __version__
 from lcpbench.core.context import Budget
 from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import Operator, apply_uncounted, dense_uncounted, measure_cost
+from lcpbench.core.operator import Operator, apply_uncounted, dense_uncounted
+from lcpbench.core.probes import measure_cost
 from lcpbench.core.ranges import parse_ranges
 from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
