@@ -164,16 +164,22 @@ def test_prox_sequence_with_kept_active_set_equals_the_old_prox(seed):
                                    * np.max(np.abs(G)))
 
 
+def _grown_model(rng, n, r):
+    """A model given ``r`` pairs of a random SPD matrix (condition 1e2), and the pairs."""
+    _, S, Y = _pairs(rng, n, r, cond=1e2)
+    model = DiagonalBFGS(n)
+    for k in range(r):
+        model.add_pair(S[k], Y[k])
+    return model, S, Y
+
+
 def test_prox_starts_from_the_previous_active_set():
     """A prox of a slightly moved point, whose active set is the previous prox's: one Newton
     pass (the predicted step lands on the root), the same point as a cold start, which needs
     more passes; a point with another active set still gets its exact prox."""
     rng = np.random.default_rng(4)
     n = 80
-    A, S, Y = _pairs(rng, n, 8, cond=1e2)
-    model = DiagonalBFGS(n)
-    for k in range(8):
-        model.add_pair(S[k], Y[k])
+    model, S, Y = _grown_model(rng, n, 8)
     d, W, P, N, G = model.compact()
     y = rng.standard_normal(n) * 2
     z0, info0 = compact_prox(y, d, W, P, N, G, active=model.active)
