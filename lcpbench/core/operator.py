@@ -112,6 +112,8 @@ class Operator(LinearOperator):
         omitted it is the applications of the first counted product that made
         any (measured per operator copy, i.e. per solve); without ``work`` it is 1.
 
+    Notes
+    -----
     Looser products on request: when the wrapped operator has an attribute
     ``at_accuracy`` (a callable ``rtol -> context manager`` inside which its products are
     made to relative accuracy ``rtol``, e.g. an iterative solve stopped earlier; the
@@ -121,8 +123,6 @@ class Operator(LinearOperator):
     applications are charged as any product's, and it is never reused as an accurate
     product (:meth:`last_product`).
 
-    Notes
-    -----
     ``count`` is the number of MVPs (columns) applied, ``seconds`` the wall time
     spent in products. The last single-vector product is remembered (input and
     output), so the framework can confirm a solver's claim at the vector it last
