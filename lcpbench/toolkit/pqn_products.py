@@ -14,6 +14,8 @@ from typing import Optional
 
 import numpy as np
 
+from lcpbench.core.residuals import kkt_abs
+
 __all__ = ["IterateProducts"]
 
 
@@ -214,15 +216,14 @@ class IterateProducts:
         iteration and possibly faster (superlinear). So the product is asked for
         ``e = min(T - e_x, T q^2 / 4)``: room for one more contraction by ``q`` and a
         factor two of over-relaxation, so that the next iteration can again be loose
-        instead of paying a full-accuracy product (measured against ``T q / (1 + q)``,
-        which assumes the contraction stays ``q``, on packed 27- and 64-sphere lattices:
-        89-93 against 104 applications at 27 spheres and 108 against 127 at 64;
-        docs/benchmarks.md, "Loose products"). Each factor of ten tighter costs about
-        2.6 Krylov applications, a full-accuracy product 15-20."""
+        instead of paying a full-accuracy product (against ``T q / (1 + q)``, which
+        assumes the contraction stays ``q``: 93 against 104 Mono-PQN applications on a
+        packed 27-sphere lattice; docs/benchmarks.md, "Loose products"). Each factor of
+        ten tighter costs about 2.6 Krylov applications, a full-accuracy product 15-20."""
         if self.relax <= 0 or self.within is None:
             return self.rtol
         scale = float(np.linalg.norm(Az))
-        res = float(np.linalg.norm(z - np.maximum(z - G, 0.0)))
+        res = kkt_abs(z, G)           # the natural residual ||z - max(z - G, 0)|| = ||min(z, G)||
         prev, self._res = self._res, res
         if scale == 0 or res == 0:
             return self.rtol
