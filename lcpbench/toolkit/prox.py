@@ -353,11 +353,15 @@ class _NewtonSystem:
             return prev
         M, flips = self._gram_of(mask, prev[:2], prev[3])
         if flips:
-            on, off = flip[mask[flip]], flip[~mask[flip]]
-            h = prev[2] + self.W[:, on] @ self.y[on] - self.W[:, off] @ self.y[off]
+            h = self._flipped_h(prev[2], mask, flip)
         else:
             h = self.W @ np.where(mask, self.y, 0.0)
         return mask, M, h, flips
+
+    def _flipped_h(self, h, mask, flip):
+        """``W Lam y`` for the set ``mask`` from ``h`` of a set differing in the rows ``flip``."""
+        on, off = flip[mask[flip]], flip[~mask[flip]]
+        return h + self.W[:, on] @ self.y[on] - self.W[:, off] @ self.y[off]
 
     def point(self, a):
         """``t`` at ``a`` (one pass over ``W``)."""
@@ -406,9 +410,7 @@ class _NewtonSystem:
         if not flip.size:
             return None                 # the same set as at a = 0: the plain Newton step
         # the cached set's own Gram matrix; W Lam y from the one at a = 0 by the flipped rows
-        on, off = flip[mask[flip]], flip[~mask[flip]]
-        h = act[2] + self.W[:, on] @ self.y[on] - self.W[:, off] @ self.y[off]
-        guess = (mask, cache_gram, h, cache_flips)
+        guess = (mask, cache_gram, self._flipped_h(act[2], mask, flip), cache_flips)
         Lg = self.residual(a, np.zeros(self.W.shape[0]), guess)
         J = self.jacobian(guess)
         try:
