@@ -35,6 +35,7 @@ from .kernels_rotated import (
     rotated_transpose,
     rotated_transpose_serial,
 )
+from .pair_frame import PairFrame
 from .pairs import PairPlan
 
 __all__ = ["StoredBlocks"]
@@ -84,6 +85,7 @@ class StoredBlocks:
         self.rotated: RotatedPairs | None = getattr(plan, "rotated", None)
         tgt, src = plan.block_tgt, plan.block_src
         self.fly: FlyPairs | None = getattr(plan, "fly_pairs", None)
+        self.frame: PairFrame | None = getattr(plan, "pair_frame", None)
         self._fly = None
         if self.rotated is None:
             self._dense = _part(plan.blocks, tgt, src, plan.M)
@@ -114,6 +116,13 @@ class StoredBlocks:
         return [part._replace(blocks=self.fly.rotated(s).form)
                 for s, part in zip(self.fly.chunks(), self._fly)]
 
+    def _rotated_parts(self) -> list[_Dense]:
+        """The parts applied by the per-pair rotated kernels (:mod:`.kernels_rotated`):
+        the pairs rotated at each product, and the stored rotated form when no pair-frame
+        form (:mod:`.pair_frame`) applies those pairs instead."""
+        parts = [] if self.frame is not None else [self._rot]
+        return [r for r in parts + self._fly_parts() if r is not None and r.src.size]
+
     @property
     def nbytes(self) -> int:
         """Memory of the stored near field (per-pair data)."""
@@ -128,9 +137,10 @@ class StoredBlocks:
             fn = apply_blocks if d.blocks.size > PARALLEL_WORK else apply_blocks_serial
             fn(d.blocks, d.ptr, d.src, coef, acc)
         fn = rotated_forward if self.work > PARALLEL_WORK else rotated_forward_serial
-        for r in [self._rot] + self._fly_parts():
-            if r is not None and r.src.size:
-                fn(r.blocks, r.ptr, r.src, np.ascontiguousarray(coef), acc)
+        for r in self._rotated_parts():
+            fn(r.blocks, r.ptr, r.src, np.ascontiguousarray(coef), acc)
+        if self.frame is not None:
+            self.frame.forward(coef, acc, parallel=self.work > PARALLEL_WORK)
         return acc
 
     def apply(self, coef: np.ndarray) -> np.ndarray:
@@ -149,9 +159,10 @@ class StoredBlocks:
                   else apply_blocks_adjoint_serial)
             fn(d.blocks, d.sptr, d.sorder, d.tgt, x, coef_bar)
         fn = rotated_transpose if self.work > PARALLEL_WORK else rotated_transpose_serial
-        for r in [self._rot] + self._fly_parts():
-            if r is not None and r.src.size:
-                fn(r.blocks, r.sptr, r.sorder, r.tgt, x, coef_bar)
+        for r in self._rotated_parts():
+            fn(r.blocks, r.sptr, r.sorder, r.tgt, x, coef_bar)
+        if self.frame is not None:
+            self.frame.transpose(x, coef_bar, parallel=self.work > PARALLEL_WORK)
 
     def add_transpose(self, ob: np.ndarray, coef_bar: np.ndarray) -> None:
         """Adds the transposed blocks' share of adjoint tractions ``ob`` (M, 3N) to the
@@ -174,11 +185,13 @@ class StoredBlocks:
         acc = np.zeros((plan.M, plan.block_synth.shape[0]))
         rot = (rotated_both, rotated_both_serial)
         for part, fns in ([(self._dense, (apply_blocks_both, apply_blocks_both_serial))]
-                          + [(r, rot) for r in [self._rot] + self._fly_parts()]):
+                          + [(r, rot) for r in self._rotated_parts()]):
             if part is None or not part.src.size:
                 continue
             fn = fns[0] if self.work > PARALLEL_WORK else fns[1]
             bar = np.empty((part.src.size, coef.shape[1]))
             fn(part.blocks, part.ptr, part.src, coef, acc, x, bar)
             coef_bar += part.by_source @ bar
+        if self.frame is not None:
+            self.frame.both(coef, acc, x, coef_bar, parallel=self.work > PARALLEL_WORK)
         out += dense_rows(acc, plan.block_synth)

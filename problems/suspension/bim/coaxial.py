@@ -202,7 +202,7 @@ class CoaxialTable:
     def values(self, rho: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
         """Interpolated equal-order entries ``(len(rho), nnz)`` of the coaxial blocks, in
         the row-major order of ``order_mask(p)`` (``rho`` in the range), or with
-        ``columns`` (a permutation of the entries) the entries ``columns``, in that order:
+        ``columns`` (distinct entries, e.g. a permutation) the entries ``columns``, in that order:
         written so directly, from coefficients permuted once per table and kept, so that
         no copy of the ``(len(rho), nnz)`` result is made to reorder it."""
         rho = np.atleast_1d(np.asarray(rho, dtype=float))
@@ -227,12 +227,14 @@ class CoaxialTable:
         return out
 
     def _permuted(self, columns: np.ndarray) -> np.ndarray:
-        """The coefficients with the entries ``columns`` (a permutation), kept per table."""
+        """The coefficients of the entries ``columns`` (distinct), kept per table."""
         columns = np.asarray(columns, dtype=np.int64)
         key = columns.tobytes()
         if key not in self._ordered:
-            if np.sort(columns).tolist() != list(range(self.coefs.shape[2])):
-                raise ValueError("columns must be a permutation of the table's entries")
+            n = self.coefs.shape[2]
+            if columns.size and (columns.min() < 0 or columns.max() >= n
+                                 or np.unique(columns).size != columns.size):
+                raise ValueError(f"columns must be distinct entries of the table (0..{n - 1})")
             self._ordered[key] = np.ascontiguousarray(self.coefs[:, :, columns])
         return self._ordered[key]
 

@@ -31,6 +31,7 @@ from lcpbench.toolkit.blas import one_blas_thread
 from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
 from .kernels import real_block_columns, traction_response
 from .kernels_rotated import FlyPairs, PlanBlocks, RotatedPairs
+from .pair_frame import PairFrame
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
@@ -407,7 +408,7 @@ class PairPlan:
         jj = np.array([j for _, j in blocked], dtype=np.int64)
         use = self._table_pairs(ii, jj)
         self.n_table_blocks = int(use.sum())
-        self.rotated = self.fly_pairs = None
+        self.rotated = self.fly_pairs = self.pair_frame = None
         if not use.any():                                  # every block built directly
             return self._direct_blocks(blocked)
         table = coaxial_table(self.p, table_range(self.p))
@@ -423,6 +424,8 @@ class PairPlan:
             self.rotated = RotatedPairs.from_table(wigner_directions(u[keep], self.p), table,
                                                    rho[keep], self._output_map,
                                                    pairs=(ii[keep], jj[keep]))
+            self.pair_frame = PairFrame.from_table(u[keep], rho[keep], ii[keep], jj[keep],
+                                                   table, self._output_map)
             if late.size:
                 self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
             self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
