@@ -33,9 +33,11 @@ solver family; the confirmations use counted products of the high-fidelity opera
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import numpy as np
+import scipy.sparse as sp
 
 from lcpbench.core.context import SolverContext
 from lcpbench.core.operator import BudgetExhausted, apply_uncounted
@@ -49,8 +51,8 @@ __all__ = ["confirm_convergence", "verify_claim", "check_infeasibility", "infeas
 #: A direction counts as a null direction when ``||(A d)_+|| <= NULL_RTOL ||A||``:
 #: every feasible point then has a norm of at least ``|b'd| / (NULL_RTOL ||A||)``.
 NULL_RTOL = 1e-10
-#: The certificate: ``||(A d)_+|| <= NULL_ULPS eps n ||A (d1 - d2)||``, the rounding of the
-#: product along ``d`` (see :func:`_certificate`).
+#: The certificate for a matrix-free operator: ``||(A d)_+|| <= NULL_ULPS eps n ||A (d1 - d2)||``,
+#: the rounding of the product along ``d`` (see :func:`_certificate`).
 NULL_ULPS = 16.0
 #: Entries of a candidate below this fraction of its largest are dropped first (see
 #: :func:`_sparsified`).
@@ -331,7 +333,7 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
     bound, pos, scale = verdict
     res.status = Status.infeasible
     res.message = (f"no solution: d >= 0 with b'd = {bd:.3g} and ||(A d)_+|| = {pos:.3g}, zero to "
-                   f"the rounding of A along d (||A (d1 - d2)|| = {scale:.3g}), so every feasible "
+                   f"the rounding of A along d (scale {scale:.3g}), so every feasible "
                    f"point has ||x|| >= {bound:.3g}; ended as: {res.message}")
     return bound
 
@@ -383,36 +385,75 @@ def _certificate(ctx: SolverContext, d: np.ndarray, Ad: np.ndarray, x: np.ndarra
                  w: np.ndarray):
     """``(bound, ||(A d)_+||, scale)`` when the confirmed product certifies ``d``, else the reason.
 
-    The scale of A along ``d`` is ``||A (d1 - d2)||`` (one uncounted product of
-    the framework), where ``d = d1 + d2`` splits ``d``'s entries by size in
-    turn: when ``A d = A d1 + A d2`` vanishes it is about ``2 ||A d1||``, the
-    size of the terms whose cancellation the product rounds. The test follows
-    the matrix where ``d`` lives, not its largest eigenvalue (a diagonally
-    scaled problem keeps its small entries small, and ``e_j`` is null only when
-    column ``j`` is zero). ``A d`` must
-    vanish to ``NULL_ULPS eps n`` of it, ``b'd`` must be negative beyond the
-    rounding of ``b'd`` itself, and a nearly feasible iterate must be inside
-    the bound (see :func:`infeasibility_evidence`).
+    A certificate must be conclusive: a product that merely cannot be told
+    from zero by a loose rounding estimate is no proof that ``A d = 0``. The
+    checks, in turn:
+
+    * the Farkas argument needs ``A' d``: a matrix-free operator must be
+      symmetric (declared with an attribute ``symmetric = True`` on the wrapped
+      operator, else checked with two uncounted products, :func:`_symmetry_defect`),
+      and an explicit matrix is applied transposed as well (uncounted), the
+      larger positive part counting;
+    * ``A d`` must vanish to the rounding of that very product, :data:`NULL_ULPS`
+      ``eps n`` times a scale of A along ``d``. For an explicit matrix the scale
+      is ``S = || |A| |d| ||`` (one uncounted product with the entries'
+      magnitudes), the standard bound on the rounding of ``A d``. For a
+      matrix-free operator it is ``||A (d1 - d2)||``, where ``d = d1 + d2``
+      splits ``d``'s entries by size in turn (the size of the terms whose
+      cancellation the product rounds);
+    * for an explicit matrix, the Rayleigh quotient ``d' A d``, computed
+      exactly (error-free products summed with ``math.fsum``), must be at most
+      ``u S`` (``u = eps / 2``): A is then singular along ``d`` within the
+      rounding of its own entries. A positive definite ``A`` has ``d' A d >=
+      lambda_min ||d||^2`` however its products round, while along a null
+      direction known to ``delta`` the quotient is ``delta' A delta``, of
+      second order: this tells a condition of 1e15 from a singular matrix
+      where the product alone cannot. Past :data:`EXACT_TERMS` stored entries
+      the quotient is not formed and the product test is held to the rigorous
+      ``gamma_n = n u / (1 - n u)`` instead of :data:`NULL_ULPS` ``eps n``;
+    * ``b'd`` must be negative beyond its own rounding, and a nearly feasible
+      iterate must be inside the bound (see :func:`infeasibility_evidence`).
     """
     n = ctx.n
     eps = float(np.finfo(np.float64).eps)
+    u = 0.5 * eps
     if not np.all(np.isfinite(Ad)):
         return "the confirming product A d is not finite"
-    # alternate signs over d's entries by size: d = d1 + d2 with halves of similar weight,
-    # and A (d1 - d2) ~ 2 A d2 is the size of the terms that cancel in A d = A d1 + A d2
-    signs = np.ones(n)
-    signs[np.argsort(-d, kind="stable")[1::2]] = -1.0
+    impl = ctx.A._impl
+    explicit = isinstance(impl, np.ndarray) or sp.issparse(impl)
+    q: Optional[float] = None
     try:
-        scale = safe_norm(apply_uncounted(ctx.A, signs * d))
+        if explicit:
+            absA = abs(impl) if sp.issparse(impl) else np.abs(impl)
+            scale = safe_norm(np.asarray(absA @ np.abs(d)).reshape(-1))
+            q = _exact_quadratic(impl, d)
+            gamma = NULL_ULPS * eps * n if q is not None else n * u / (1.0 - n * u)
+            pos = max(safe_norm(np.maximum(Ad, 0.0)),
+                      safe_norm(np.maximum(np.asarray(impl.T @ d).reshape(-1), 0.0)))
+        else:
+            if getattr(impl, "symmetric", None) is not True:
+                defect = _symmetry_defect(ctx)
+                if defect is not None:
+                    return defect
+            # alternate signs over d's entries by size: d = d1 + d2 with halves of similar
+            # weight, and A (d1 - d2) is the size of the terms that cancel in A d1 + A d2
+            signs = np.ones(n)
+            signs[np.argsort(-d, kind="stable")[1::2]] = -1.0
+            scale = safe_norm(apply_uncounted(ctx.A, signs * d))
+            gamma = NULL_ULPS * eps * n
+            pos = safe_norm(np.maximum(Ad, 0.0))
     except Exception as exc:
         return f"the scale of A along d could not be measured: {type(exc).__name__}: {exc}"
-    pos = safe_norm(np.maximum(Ad, 0.0))
     # float64 rounding even for an inexact operator: its products only blur A d, and a
     # blur is no evidence (an inexact operator's problem is then never declared infeasible)
-    level = NULL_ULPS * eps * n * scale
+    level = gamma * scale
     if not (np.isfinite(scale) and pos <= level):
         return (f"||(A d)_+|| = {pos:.3g} is not zero to the rounding of A along d "
-                f"({level:.3g} = {NULL_ULPS:g} eps n ||A (d1 - d2)||): A is not singular there")
+                f"({level:.3g}): A is not singular there")
+    if explicit and q is not None and not q <= u * scale:
+        return (f"d'A d = {q:.3g} computed exactly exceeds the rounding of A's entries "
+                f"along d ({u * scale:.3g} = u || |A| |d| ||): A is definite along d "
+                "(its products there are only below their rounding)")
     bd = float(ctx.b @ d)
     if not -bd > NULL_ULPS * eps * n * float(np.abs(ctx.b) @ d):
         return f"b'd = {bd:.3g} is not negative beyond its rounding"
@@ -423,3 +464,61 @@ def _certificate(ctx: SolverContext, d: np.ndarray, Ad: np.ndarray, x: np.ndarra
         return (f"the bound ||x|| >= {bound:.3g} is within reach of the nearly feasible "
                 "iterate")
     return bound, pos, scale
+
+
+def _symmetry_defect(ctx: SolverContext) -> Optional[str]:
+    """None when the operator passes a symmetry check, else the reason it fails.
+
+    Two uncounted products with seeded random vectors ``p, q``: ``|p'A q - q'A p|``
+    must be within ``max(rtol, 64 eps n)`` of ``||p|| ||A q|| + ||q|| ||A p||``
+    (``rtol`` the operator's declared accuracy).
+    """
+    rng = np.random.default_rng(20240601)
+    p, q = rng.standard_normal(ctx.n), rng.standard_normal(ctx.n)
+    Ap, Aq = apply_uncounted(ctx.A, p), apply_uncounted(ctx.A, q)
+    scale = safe_norm(p) * safe_norm(Aq) + safe_norm(q) * safe_norm(Ap)
+    tol = max(ctx.A.rtol or 0.0, 64.0 * float(np.finfo(np.float64).eps) * ctx.n)
+    gap = abs(float(p @ Aq) - float(q @ Ap))
+    if np.isfinite(gap) and gap <= tol * scale:
+        return None
+    return (f"the operator is not symmetric (|p'Aq - q'Ap| = {gap:.3g} for random p, q, "
+            f"{tol:.2g} relative allowed), and the certificate holds only for symmetric A")
+
+
+#: The exact Rayleigh quotient of :func:`_certificate` is computed for explicit matrices
+#: with at most this many stored entries (it sums four error-free terms per entry).
+EXACT_TERMS = 1_000_000
+_SPLITTER = 134217729.0                       # 2**27 + 1 (Dekker's split)
+
+
+def _two_product(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``p + e = a * b`` exactly (Dekker), for finite products away from overflow."""
+    p = a * b
+    ca, cb = _SPLITTER * a, _SPLITTER * b
+    ah = ca - (ca - a)
+    bh = cb - (cb - b)
+    al, bl = a - ah, b - bh
+    e = ((ah * bh - p) + ah * bl + al * bh) + al * bl
+    return p, e
+
+
+def _exact_quadratic(impl, d: np.ndarray) -> Optional[float]:
+    """``d' A d`` rounded once from its exact value, or None (too large, or out of range)."""
+    if sp.issparse(impl):
+        coo = impl.tocoo()
+        if coo.nnz > EXACT_TERMS:
+            return None
+        a, i, j = coo.data, coo.row, coo.col
+    else:
+        if impl.size > EXACT_TERMS:
+            return None
+        i, j = np.nonzero(impl)
+        a = impl[i, j]
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        p, e = _two_product(a, d[j])
+        p1, e1 = _two_product(p, d[i])
+        p2, e2 = _two_product(e, d[i])
+        terms = np.concatenate([p1, e1, p2, e2])
+    if not np.all(np.isfinite(terms)) or (terms.size and np.max(np.abs(terms)) > 1e290):
+        return None
+    return math.fsum(terms.tolist())
