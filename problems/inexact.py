@@ -23,7 +23,8 @@ from scipy.sparse.linalg import LinearOperator, cg, spsolve
 from lcpbench import LCP, Operator, register_problem
 from lcpbench.core.guards import Estimate
 from lcpbench.core.specs import Bounds
-from lcpbench.problems.synthetic import Count, InstanceSize, SeededParams, seeded
+
+from .synthetic import Count, InstanceSize, SeededParams, seeded
 
 __all__ = ["InexactInverse", "exact_product", "inexact_inverse", "inexact_lcp", "stiffness"]
 

@@ -23,7 +23,8 @@ import numpy as np
 from lcpbench import LCP, register_problem
 from lcpbench.core.guards import dense_family
 from lcpbench.core.specs import Bounds, Doc
-from lcpbench.problems.synthetic import Count, SeededParams, check_flops, seeded
+
+from .synthetic import Count, SeededParams, check_flops, seeded
 
 __all__ = ["infeasible_lcp", "unbounded_lcp"]
 

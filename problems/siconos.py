@@ -40,6 +40,7 @@ file with numbers after ``q`` that is no MLCP is refused as malformed.
 
 from __future__ import annotations
 
+import builtins
 from pathlib import Path
 from typing import Optional
 
@@ -108,7 +109,7 @@ class _Cursor:
     def float(self, what: str) -> float:
         return self._number(what, float, "a number")
 
-    def next_token(self) -> tuple[Optional[str], int]:
+    def next_token(self) -> tuple[Optional[str], builtins.int]:
         """The token after the ones read and its line (0-based), or None at the end of the
         file; nothing is read."""
         if self.tok < len(self.toks):
@@ -283,7 +284,8 @@ def _mlcp_sizes(text: str) -> Optional[tuple[int, int]]:
     st1, st2, n, m = (int(x) for x in v[:4])
     if st1 in (0, 1) and st2 in (0, 1) and (st1 or st2) and n + m > 0:
         if st1:
-            rows, k = [], 4
+            rows: list[int] = []
+            k = 4
             while k < len(v) and len(rows) <= n + m and _is_count(v[k]):
                 rows.append(int(v[k]))
                 k += 1

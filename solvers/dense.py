@@ -60,6 +60,21 @@ class PGSParams(CheckedParams):
     omega: Annotated[float, Bounds(gt=0, lt=2)] = 1.0
 
 
+def _matrix(ctx: SolverContext) -> np.ndarray:
+    """The explicit matrix the framework formed for this solve (``needs_dense=True``).
+
+    Raises
+    ------
+    RuntimeError
+        The framework formed none (the solver was run without ``needs_dense``).
+    """
+    if ctx.dense is None:
+        raise RuntimeError("the dense solvers need the explicit matrix ctx.dense; they are "
+                           "registered with needs_dense=True, so run them through "
+                           "lcpbench.solve or run_solver")
+    return ctx.dense
+
+
 @register_solver("pgs", PGSParams, needs_dense=True)
 @on_one_blas_thread
 def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
@@ -74,7 +89,7 @@ def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
     alone (the stop rule never accepts it). Each sweep costs one counted MVP:
     ``w = A x + b`` through ``ctx.A`` (see the module docstring); ``info['sweeps']``.
     """
-    M = ctx.dense
+    M = _matrix(ctx)
     b = ctx.b
     n = ctx.n
     x = np.maximum(ctx.x0, 0.0)
@@ -141,13 +156,13 @@ def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.nda
     ratios = rhs[cand] / d[cand]
     best = float(np.min(ratios))
     near = cand[ratios <= best + 1e-12 * max(1.0, abs(best))]
-    col = 0
+    j = 0
     # Lexicographic tie-break on the rows of B^-1 divided by the pivot entries.
-    while near.size > 1 and col < Binv.shape[1]:
-        vals = Binv[near, col] / d[near]
+    while near.size > 1 and j < Binv.shape[1]:
+        vals = Binv[near, j] / d[near]
         m = float(np.min(vals))
         near = near[vals <= m + 1e-12 * max(1.0, abs(m))]
-        col += 1
+        j += 1
     return int(near[0])
 
 
@@ -168,7 +183,7 @@ def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: i
         dz[entering - n] += 1.0
     dz = np.maximum(dz, 0.0)
     if np.any(dz > 0.0):
-        ctx.offer_direction(dz, ctx.dense @ dz)
+        ctx.offer_direction(dz, _matrix(ctx) @ dz)
 
 
 class _Tableau:
@@ -292,7 +307,7 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     the updated inverse), then ``w = A x + b`` costs one counted MVP.
     ``info``: ``pivots``.
     """
-    M = ctx.dense
+    M = _matrix(ctx)
     b = ctx.b
     n = ctx.n
     ctx.info["pivots"] = 0

@@ -183,11 +183,11 @@ def lbfgsb(ctx: SolverContext, p: LBFGSBParams) -> SolveResult:
                            bounds=[(0.0, None)] * ctx.n, callback=callback, options=opts)
         except StopSolver:
             _record(ctx, ev, nit[0], "stopped by lcpbench's stop rule")
-            x, w = ctx.last
+            x, w = _last(ctx)
             return ctx.finish(x, w)
         except _Rebase:
             ctx.info["restarts"] += 1
-            x, w = ctx.last
+            x, w = _last(ctx)
             continue
         msg = str(res.message)
         _record(ctx, ev, nit[0], msg)
@@ -209,6 +209,15 @@ def lbfgsb(ctx: SolverContext, p: LBFGSBParams) -> SolveResult:
             return ctx.finish(x, w, Status.stagnated,
                               f"scipy L-BFGS-B stopped: {msg} ({why})")
         ctx.info["restarts"] += 1
+
+
+def _last(ctx: SolverContext) -> tuple[np.ndarray, np.ndarray]:
+    """The last reported ``(x, w)``: the stop rule and a rebase are only raised from the
+    callback after a report, so there always is one."""
+    last = ctx.last
+    if last is None:
+        raise RuntimeError("l-bfgs-b stopped before any iterate was reported")
+    return last
 
 
 def _record(ctx: SolverContext, ev: _Evaluator, nit: int, msg: str) -> None:

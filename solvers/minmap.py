@@ -220,7 +220,7 @@ def minmap_newton(ctx: SolverContext, p: MinMapParams) -> SolveResult:
             # On a problem without a solution J is singular and the Krylov solve grows the
             # step along a null direction of A: evidence the framework can confirm.
             ctx.offer_direction(dx, Adx)
-        step: Optional[tuple[np.ndarray, np.ndarray]] = None
+        step: Optional[tuple[np.ndarray, np.ndarray, bool]] = None
         if dx is not None:
             JdX = np.where(S, Adx, dx)
             gd = float(H @ JdX)
@@ -302,7 +302,7 @@ def _newton_direction(ctx: SolverContext, p: MinMapParams, x, w, H, S, F, counte
 
 
 def _line_search(ctx: SolverContext, p: MinMapParams, x, w, d, Ad, f0: float, gd: float, *,
-                 project: bool = True):
+                 project: bool = True) -> Optional[tuple[np.ndarray, np.ndarray, bool]]:
     """Armijo backtracking on ``1/2||min(x,w)||^2``; ``(x, w, exact)`` or None.
 
     Trials are ``max(0, x + tau d)`` when ``project`` (the source's projected

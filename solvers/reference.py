@@ -130,6 +130,9 @@ def make_reference_solver(backend: str, default_tol: float) -> Callable:
     def solve(ctx: SolverContext, p) -> SolveResult:
         seconds, why = _time_limit(ctx)
         try:
+            if ctx.dense is None:
+                raise RuntimeError(f"{backend}: the framework formed no explicit matrix "
+                                   "(the reference solvers are registered with needs_dense)")
             x, message, tol = solve_and_refine(ctx.dense, ctx.b, backend, p.tol,
                                                retries=p.retries, polish=p.polish,
                                                refine_steps=p.refine_steps, max_seconds=seconds)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Optional, cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -277,9 +277,9 @@ def _build_bim(fid: Fidelity, config: Configuration) -> LinearOperator:
 
 def _build_split(fid: Fidelity, config: Configuration) -> LinearOperator:
     """The distance-split low (:mod:`.bim.split`) on the high's set-up when the orders agree."""
-    from .bim import bim_mobility, split_mobility
+    from .bim import BimMobility, bim_mobility, split_mobility
 
-    base = (config.high if config.same_order_bim(fid)
+    base = (cast(BimMobility, config.high) if config.same_order_bim(fid)
             else bim_mobility(config.centers, config.radii, p=fid.p, eps_gmres=fid.eps_gmres,
                               mu=config.mu, krylov=config.krylov, far=config.far))
     return split_mobility(base, fid.extra["far_degree"], fid.eps_gmres,
