@@ -78,35 +78,13 @@ class ShippedSetParams:
     ----------
     instances : str
         Positions to read, e.g. ``"0-9"`` or ``"0,3,5-7"`` (inclusive; default all).
-    lows : list of str
-        The low fidelities to keep, e.g. ``[p4e6,p8f6r3e3]`` (default all the set's).
-        A multi-fidelity solver that names no low runs once per kept low.
     """
 
     instances: str = ""
-    lows: tuple[str, ...] = ()
 
 
-#: Shipped sets in the default sweep of ``lcpbench run`` (with the hard-case families), each
-#: with the parameters the default sweep gives it: the 0.1a set with all its lows, and the
-#: authors' 0.3a scene with the paper's low (p = 4, eps 1e-6) and the compressed split low.
-DEFAULT_SETS: dict[str, str] = {"lattice-bim-m3": "",
-                                "paper-lattice-m3": "lows=[p4e6,p8f6r3e3]"}
-
-
-def _keep_lows(lcps: list[LCP], lows: tuple[str, ...], stem: str) -> list[LCP]:
-    """The instances with only the low fidelities ``lows`` (all when empty)."""
-    if not lows:
-        return lcps
-    for lcp in lcps:
-        missing = [name for name in lows if name not in lcp.low]
-        if missing:
-            raise ValueError(f"set {stem}: instance {lcp.name} has no low {missing[0]!r}; "
-                             f"its lows are {', '.join(sorted(lcp.low)) or 'none'}")
-        lcp.low = {name: lcp.low[name] for name in lows}
-        if isinstance(lcp.meta.get("low"), dict):
-            lcp.meta["low"] = {k: v for k, v in lcp.meta["low"].items() if k in lows}
-    return lcps
+#: Shipped sets in the default sweep of ``lcpbench run`` (with the hard-case families).
+DEFAULT_SETS = ("lattice-bim-m3",)
 
 
 def register_shipped_sets() -> list[str]:
@@ -120,16 +98,13 @@ def register_shipped_sets() -> list[str]:
     for stem, path in shipped_sets().items():
         pname = set_problem_name(stem)
 
-        def load(p: ShippedSetParams, _path: Path = path, _stem: str = stem):
-            return _keep_lows(stored(StoredParams(path=str(_path), instances=p.instances)),
-                              tuple(p.lows), _stem)
+        def load(p: ShippedSetParams, _path: Path = path):
+            return stored(StoredParams(path=str(_path), instances=p.instances))
 
         load.__doc__ = f"Shipped stored set {stem} ({path.name}), verified on reading."
         load.__qualname__ = f"shipped_set_{pname}"
         try:
-            default = (pname + (":" + DEFAULT_SETS[stem] if DEFAULT_SETS[stem] else "")
-                       if stem in DEFAULT_SETS else False)
-            register_problem(pname, ShippedSetParams, default=default)(load)
+            register_problem(pname, ShippedSetParams, default=stem in DEFAULT_SETS)(load)
         except ValueError:
             continue                     # a plugin of that name exists: keep it
         register_set(stem, path, problem=pname, baselines=BASELINES)

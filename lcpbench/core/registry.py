@@ -135,7 +135,7 @@ class ProblemInfo:
     func: Callable
     params: type
     summary: str = ""
-    default: Union[bool, str] = False
+    default: bool = False
     estimate: Optional[Callable] = None
 
 
@@ -211,12 +211,11 @@ def register_solver(name: str, params: type, *, needs_dense: bool = False,
         name, func, params, needs_dense, reference, bool(multifidelity), summary, listed, lows))
 
 
-def register_problem(name: str, params: type, *, default: Union[bool, str] = False,
+def register_problem(name: str, params: type, *, default: bool = False,
                      estimate: Optional[Callable] = None):
     """Decorator registering ``func(params) -> list[LCP]`` as problem family ``name``.
 
-    ``default=True`` puts the family in the shipped default set of ``lcpbench run``; a
-    string puts it there with those parameters (the spec ``"name:key=value"``).
+    ``default=True`` puts the family in the shipped default set of ``lcpbench run``.
     ``estimate(params)`` returns a :class:`lcpbench.core.guards.Estimate` of the
     instances' memory and build work, computed from the parameters alone (no matrix
     is built), so that oversized work is refused before it starts.

@@ -288,8 +288,7 @@ def default_sweep() -> tuple[list[str], list[str]]:
     """Every listed MVP-only solver and reference solver, on the default problems."""
     sv = [name for name, info in sorted(solvers().items())
           if info.listed and (info.mvp_only or info.reference)]
-    pb = [info.default if isinstance(info.default, str) else name
-          for name, info in sorted(problems().items()) if info.default]
+    pb = [name for name, info in sorted(problems().items()) if info.default]
     return sv, pb
 
 
