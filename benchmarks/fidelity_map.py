@@ -31,7 +31,7 @@ import lcpbench
 from lcpbench.core.operator import dense_uncounted
 from lcpbench.core.residuals import kkt_abs
 from lcpbench.problems.synthetic_low import SyntheticLowParams, parse_low_name, synthetic_low
-from lcpbench.toolkit.pqn_levels import optimal_step
+from lcpbench.solvers.pqn.mono import optimal_step
 from lcpbench.toolkit.qp import solve_and_refine
 
 TOL = 1e-8

@@ -17,7 +17,8 @@ from lcpbench.problems.synthetic_low import (
     synthetic_low,
 )
 from lcpbench.report.fidelity_map import fidelity_map_section, fidelity_map_table
-from lcpbench.toolkit.pqn_levels import BiOptions, forcing_term, model_check
+from lcpbench.solvers.pqn.bi import forcing_term, model_check
+from lcpbench.solvers.pqn.params import BiPQNParams
 from lcpbench.toolkit.quasinewton import free_secant_pair
 
 
@@ -84,12 +85,11 @@ def test_model_check_and_forcing_term():
     p = np.array([1.0, -1.0, 0.5])
     assert model_check(A @ p, A @ p) == 0.0
     assert model_check(A @ p, 0.5 * (A @ p)) == pytest.approx(0.5)
-    opts = BiOptions(inner_rtol=0.1, forcing=0.5)
-    assert forcing_term(None, opts) == 0.1                   # nothing measured: the cap
-    assert forcing_term(1e-3, opts) == pytest.approx(5e-4)   # an accurate model: solve deeper
-    assert forcing_term(0.9, opts) == 0.1                    # a poor one: not over-solved
+    assert forcing_term(None, 0.1) == 0.1                   # nothing measured: the cap
+    assert forcing_term(1e-3, 0.1) == pytest.approx(5e-4)   # an accurate model: solve deeper
+    assert forcing_term(0.9, 0.1) == 0.1                    # a poor one: not over-solved
     with pytest.raises(ValueError, match="start"):
-        BiOptions(start="middle")
+        BiPQNParams(start="middle")
 
 
 def test_free_secant_pair():

@@ -17,7 +17,9 @@ import scipy.sparse as sp
 import lcpbench
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params, parse_spec
-from lcpbench.toolkit.pqn_levels import Counters, MonoOptions, mono_level
+from lcpbench.solvers.pqn.mono import level_model, mono_level
+from lcpbench.solvers.pqn.products import DirectionProducts
+from lcpbench.solvers.pqn.state import Counters
 from lcpbench.toolkit.prox import compact_prox
 from lcpbench.toolkit.quasinewton import DiagonalBFGS, ModelPairs, Rank2
 
@@ -251,8 +253,8 @@ def test_an_iteration_allocates_no_n_by_r_array():
             return True
         return False
 
-    out = mono_level(lambda v: A @ v, np.zeros(n), b.copy(), stop, 100, MonoOptions(),
-                     Counters())
+    out = mono_level(DirectionProducts(lambda v: A @ v), np.zeros(n), b.copy(), stop, 100,
+                     level_model(n, 0, "bb"), Counters())
     assert len(out.pairs) >= 24
     assert peaks["bytes"] < 12 * n * 8        # the n x r factors alone are 2 * 24 * n * 8
 

@@ -1,11 +1,20 @@
 """Proximal quasi-Newton solvers: ``mono-pqn``, ``bi-pqn`` and the ``multi-pqn`` extension.
 
-The method paper's sections "A Proximal Quasi-Newton Method" (the paper's Mono-PQN algorithm),
-"Mono-PQN Step Size Selection" (the paper's step-size algorithm), "A Bifidelity Proximal
-Quasi-Newton Method" (the paper's Bi-PQN algorithm) and appendices "Fast Solutions to Weighted
-Proximal Operator" and "Bifidelity Proximal Quasi-Newton". The iteration itself
-lives in :mod:`lcpbench.toolkit.pqn_levels` and :mod:`lcpbench.toolkit.pqn_bilevel`;
-this module wires it to the solver context and documents every choice.
+The method paper's Section 4 ("A Proximal Quasi-Newton Method": Algorithm 1, Mono-PQN,
+with Proposition 1 for the weighted prox), Section 4.1 (Algorithm 2, the optimal
+over-relaxation), Section 5.2 (Algorithm 3, Bi-PQN) and appendices A (Algorithm 4, the
+semi-smooth Newton solve of the prox) and D (Bi-PQN's secant conditions). The package:
+
+* :mod:`~lcpbench.solvers.pqn.mono`: Algorithm 1 as one loop (:func:`~lcpbench.solvers.pqn.mono.mono_level`) and
+  Algorithm 2 (:func:`~lcpbench.solvers.pqn.mono.optimal_step`);
+* :mod:`~lcpbench.solvers.pqn.bi`: Algorithm 3 as one loop (:func:`~lcpbench.solvers.pqn.bi.bi_level`), its
+  low-fidelity start and the multi-fidelity chain;
+* :mod:`~lcpbench.solvers.pqn.products`: the product rules (``products=paper`` /
+  ``iterate``, ``relax``) the loops call for their one product per iteration;
+* :mod:`~lcpbench.solvers.pqn.params`: the parameters and the constants behind them;
+* :mod:`~lcpbench.solvers.pqn.state`: the typed outcomes, decisions, counters and carry.
+
+This module wires the loops to the solver context and documents every choice.
 
 MVPs per iteration
 ------------------
@@ -25,7 +34,7 @@ Products of the iterate
 -----------------------
 ``products=iterate`` (default ``paper``) applies the high-fidelity operator to the
 new point ``x^ = x + p`` instead of the direction ``p`` and forms ``A p = A x^ - A x``
-by difference (:class:`~lcpbench.toolkit.pqn_products.IterateProducts`, where the
+by difference (:class:`~lcpbench.solvers.pqn.products.IterateProducts`, where the
 accuracy argument is): the same number of products, but an operator with Krylov
 recycling (the boundary-integral mobility) solves products of converging inputs in
 few new directions. Bi-PQN's low products (the low start and the subproblems) are
@@ -37,7 +46,7 @@ docs/benchmarks.md, "Products of the iterate". With ``relax > 0`` and an operato
 that makes products to a requested accuracy (``Operator.product_within``: the
 boundary-integral operators stop their Krylov solves earlier) the products of points
 are made only as accurately as the residual needs (inexact products;
-:class:`~lcpbench.toolkit.pqn_products.IterateProducts` has the accuracy argument),
+:class:`~lcpbench.solvers.pqn.products.IterateProducts` has the accuracy argument),
 full accuracy again near the solution; claims are confirmed at full accuracy.
 
 Work outside products
@@ -60,8 +69,7 @@ operators) run with the thread counts in force when the solve began.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import Optional, Union
 
 import numpy as np
 
@@ -71,68 +79,22 @@ from lcpbench.core.registry import LowOperators
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.toolkit.blas import one_blas_thread, with_current_blas_threads
 from lcpbench.toolkit.confirm import ConfirmedReport
-from lcpbench.toolkit.pqn_bilevel import bi_level, low_start
-from lcpbench.toolkit.pqn_levels import (
-    BiOptions,
-    Counters,
-    IterateProducts,
-    MonoOptions,
-    Pairs,
-    mono_level,
+from lcpbench.toolkit.quasinewton import Pairs, SecantMemory, free_secant_pair
+
+from .bi import LowStart, bi_level, low_start
+from .mono import level_model, mono_level
+from .params import (
+    DIFFERENCE_TOL,
+    RECOMPUTE_EVERY,
+    BiParamsBase,
+    BiPQNParams,
+    MonoPQNParams,
+    MultiPQNParams,
 )
-from lcpbench.toolkit.quasinewton import SecantMemory, free_secant_pair
+from .products import DirectionProducts, IterateProducts, LowPoints
+from .state import Counters, LevelResult, Outcome
 
-__all__ = ["MonoPQNParams", "BiPQNParams", "MultiPQNParams", "mono_pqn", "bi_pqn", "multi_pqn"]
-
-@dataclass(frozen=True)
-class MonoPQNParams(MonoOptions):
-    """Parameters of mono-pqn (documented on :class:`~lcpbench.toolkit.pqn_levels.MonoOptions`)."""
-
-
-@dataclass(frozen=True)
-class BiPQNParams(BiOptions):
-    """Parameters of bi-pqn (the others documented on
-    :class:`~lcpbench.toolkit.pqn_levels.BiOptions`).
-
-    Parameters
-    ----------
-    low : str
-        Name of the low-fidelity operator in the LCP's ``low`` (empty: the only one).
-    """
-
-    low: str = ""
-
-
-@dataclass(frozen=True)
-class MultiPQNParams(BiPQNParams):
-    """Parameters of multi-pqn: ``lows`` names the chain (the others as for bi-pqn).
-
-    Parameters
-    ----------
-    low : str
-        Unused (use ``lows``).
-    lows : list of str
-        Low-fidelity operators from the most to the least accurate, e.g.
-        ``lows=[p6,p4,p3]`` (empty: every low operator of the LCP, ordered by
-        decreasing cost).
-
-    Notes
-    -----
-    multi-pqn's ``start`` defaults to ``high``: solving the first low problem
-    through the whole chain cost more than it saved on the shipped sets
-    (docs/benchmarks.md, "PQN defaults: the measurements behind them"). Levels
-    below the top solve their subproblems to the fixed ``inner_rtol``: the
-    forcing term follows the high-fidelity residual, which only the top level sees.
-    """
-
-    lows: tuple[str, ...] = ()
-    start: Literal["low", "high"] = "high"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.low:
-            raise ValueError("multi-pqn takes `lows` (an ordered list), not `low`")
-
+__all__ = ["mono_pqn", "bi_pqn", "multi_pqn"]
 
 def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
     """The pairs of ``state=`` (a :class:`SecantMemory` with ``n`` rows), checked."""
@@ -149,48 +111,61 @@ def _carried(ctx: SolverContext, solver: str) -> Optional[Pairs]:
     return Pairs(S, Y, [None] * len(S)) if len(S) else None
 
 
-def _finish(ctx: SolverContext, out, counters: Counters, pairs: Pairs) -> SolveResult:
+def _finish(ctx: SolverContext, out: LevelResult, counters: Counters) -> SolveResult:
     ctx.info.update(counters.as_dict())
-    memory = pairs.memory(ctx.n)
+    memory = out.pairs.memory(ctx.n)
     ctx.info["secant_memory"] = memory
-    if out.reason == "unbounded":
+    if out.outcome is Outcome.UNBOUNDED:
         if out.ray is not None:         # the top level's p and A p: the framework checks them
             ctx.offer_direction(*out.ray)
         return ctx.finish(out.z, out.G, Status.infeasible,
                           "the quadratic is unbounded below along the search direction: the LCP "
                           "has no solution (A not PSD, or -b outside the cone)", state=memory)
-    if out.reason == "stationary":
+    if out.outcome is Outcome.STATIONARY:
         return ctx.finish(out.z, out.G, Status.stagnated,
                           "no descent direction: the projected gradient vanishes to round-off",
                           state=memory)
     return ctx.finish(out.z, out.G, state=memory)
 
 
-def _iterate_products(ctx: SolverContext, p: MonoOptions):
-    """``(products, stop)``: the :class:`IterateProducts` of ``products=iterate`` (None
-    for ``paper``) and the stop test, which then confirms every claim by a counted product.
+class _ConfirmEvery:
+    """The stop test of ``products=iterate``: every claim confirmed by a counted product
+    (``G`` is made of differences)."""
+
+    def __init__(self, stop: ConfirmedReport):
+        self.stop = stop
+        self.exact = stop.exact
+
+    def __call__(self, z: np.ndarray, G: np.ndarray) -> bool:
+        return self.stop(z, G, always=True)
+
+
+Stop = Union[ConfirmedReport, _ConfirmEvery]
+
+
+def _product_rule(ctx: SolverContext, p: Union[MonoPQNParams, BiParamsBase],
+                  difference_tol: float
+                  ) -> tuple[Union[DirectionProducts, IterateProducts], Stop]:
+    """``(products, stop)``: the product rule of ``products=`` and the stop test, which
+    with products of points confirms every claim by a counted product.
 
     The difference needs the operator's accuracy: declared (``Operator(rtol=)``),
     a float64 matrix, or measured by the framework (uncounted); an operator of
     unknown accuracy gets products of the direction (``info['products']`` says so).
     """
     stop = ConfirmedReport(ctx)
+    apply = with_current_blas_threads(ctx.A.matvec)
     ctx.info["products"] = p.products
     if p.products != "iterate":
-        return None, stop
+        return DirectionProducts(apply), stop
     acc = ctx.operator_accuracy()
     if not acc.known:
         ctx.info["products"] = "paper (the operator's accuracy is unknown)"
-        return None, stop
-
-    def confirmed(z, G):       # every claim by a counted product: G is made of differences
-        return stop(z, G, always=True)
-
-    confirmed.exact = stop.exact               # type: ignore[attr-defined]
+        return DirectionProducts(apply), stop
     within = with_current_blas_threads(ctx.A.product_within) if ctx.A.relaxable else None
     ctx.info["relax"] = p.relax if within is not None else 0.0
-    return IterateProducts(ctx.b, acc.rtol, p.difference_tol, relax=p.relax,
-                           within=within), confirmed
+    return IterateProducts(apply, ctx.b, acc.rtol, difference_tol, relax=p.relax,
+                           within=within), _ConfirmEvery(stop)
 
 
 def _start(ctx: SolverContext):
@@ -200,18 +175,18 @@ def _start(ctx: SolverContext):
 
 @register_solver("mono-pqn", MonoPQNParams)
 def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
-    """Mono-fidelity proximal quasi-Newton method (the method paper's Mono-PQN algorithm).
+    """Mono-fidelity proximal quasi-Newton method (Algorithm 1 of the method paper).
 
     Each iteration: ``x~ = x - H g`` with ``H = B^-1`` applied by the BFGS
-    two-loop recursion in O(n r); ``x^ = prox^B(x~)`` by Proposition
-    prop-nnProx (semi-smooth Newton on the 2r-dimensional root problem,
-    the paper's semi-smooth Newton algorithm; closed form ``max(x~, 0)`` while ``r = 0``);
+    two-loop recursion in O(n r); ``x^ = prox^B(x~)`` by Proposition 1
+    of the paper (semi-smooth Newton on the 2r-dimensional root problem,
+    Algorithm 4; closed form ``max(x~, 0)`` while ``r = 0``);
     ``p = x^ - x``; one MVP ``A p``; the optimal over-relaxation ``eta*`` of
-    the paper's step-size algorithm from the cached ``A p``; ``x+ = x + eta p``,
+    Algorithm 2 from the cached ``A p``; ``x+ = x + eta p``,
     ``A x+ = A x + eta A p``; BFGS update with ``(eta p, eta A p)`` (Nocedal &
     Wright, ch. 6), pairs with ``s'y <= 0`` skipped. The paper's choices:
-    full memory, optimal step (not unit), and the stopping rule of eq.
-    kkt-error. Choices the paper leaves open, taken from the authors' code:
+    full memory, optimal step (not unit), and the stopping rule of its Section 6
+    (``||min(x, A x + b)||``). Choices the paper leaves open, taken from the authors' code:
     the BB-scaled initial diagonal with ``gamma = 0.8``. If an inexact prox
     gives no descent, the projected-gradient direction is used (counted as
     ``gradient_fallbacks``).
@@ -230,21 +205,21 @@ def mono_pqn(ctx: SolverContext, p: MonoPQNParams) -> SolveResult:
     """
     x, g = _start(ctx)
     counters = Counters()
-    products, stop = _iterate_products(ctx, p)
+    products, stop = _product_rule(ctx, p, p.difference_tol)
     seed = _carried(ctx, "mono-pqn")
     pair = free_secant_pair(x, g, ctx.b) if p.free_pair else None
     if pair is not None:
         seed = seed or Pairs()
         seed.add(*pair)
         ctx.info["free_pair"] = True
-    apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
+    exact = with_current_blas_threads(stop.exact)
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
-        out = mono_level(apply, x, g, stop, sys.maxsize, p, counters, seed=seed,
-                         exact_gradient=exact, products=products)
-    if products is not None:
-        ctx.info.update(products.as_dict())
+        model = level_model(ctx.n, p.memory, p.scaling, seed)
+        out = mono_level(products, x, g, stop, sys.maxsize, model, counters,
+                         exact_gradient=exact, recompute_every=p.recompute_every)
+    ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
-    return _finish(ctx, out, counters, out.pairs)
+    return _finish(ctx, out, counters)
 
 
 def _low_names(ctx: SolverContext, wanted: tuple, solver: str) -> list[str]:
@@ -263,56 +238,52 @@ def _low_names(ctx: SolverContext, wanted: tuple, solver: str) -> list[str]:
     return list(wanted)
 
 
-def _run_chain(ctx: SolverContext, p: BiPQNParams, names: list[str], solver: str
+def _run_chain(ctx: SolverContext, p: BiParamsBase, names: list[str], solver: str
                ) -> SolveResult:
     x = np.maximum(ctx.x0, 0.0)
     counters = Counters()
     lows = [with_current_blas_threads(ctx.low[k].matvec) for k in names]
     carried = _carried(ctx, solver)          # for the Mono-PQN model only (bi_level)
-    products, stop = _iterate_products(ctx, p)
-    if products is not None and len(names) == 1:
+    products, stop = _product_rule(ctx, p, DIFFERENCE_TOL)
+    low_points = None
+    if isinstance(products, IterateProducts) and len(names) == 1:
         # the low's products of points too, where its accuracy is declared or it is a matrix
         low = ctx.low[names[0]]
-        products.low_rtol = low.rtol if low.rtol is not None else (0.0 if low.explicit
-                                                                   else None)
-        if low.relaxable:
-            products.low_within = with_current_blas_threads(low.product_within)
+        rtol = low.rtol if low.rtol is not None else (0.0 if low.explicit else None)
+        if rtol is not None:
+            within = with_current_blas_threads(low.product_within) if low.relaxable else None
+            low_points = LowPoints(rtol, p.relax, within)
     floor = 0.1 * ctx.threshold
-    rho = r_prev = None
     from_low = p.start == "low"
-    level_state = None
-    apply, exact = with_current_blas_threads(ctx.A.matvec), with_current_blas_threads(stop.exact)
+    exact = with_current_blas_threads(stop.exact)
     with one_blas_thread():       # the solver's own small dense algebra; products keep theirs
-        if from_low:
-            x, g, level_state, rho, r_prev = low_start(lows, x, ctx.b, p, counters, exact,
-                                                       floor, products=products)
-        else:
-            g = exact(x)
-        out, state = bi_level(apply, lows, x, g, stop, sys.maxsize, p,
-                              counters, state=level_state, warm_start=not from_low,
-                              exact_gradient=exact, floor=floor, model_error=rho,
-                              prev_residual=r_prev, fallback_seed=carried,
-                              products=products)
-    if products is not None:
-        ctx.info.update(products.as_dict())
+        # Algorithm 3, line 1: the low-fidelity start (start=high: A x0 first)
+        start = low_start(lows, x, ctx.b, p, counters, exact, floor, low_points=low_points) \
+            if from_low else LowStart(x, exact(x))
+        out, _ = bi_level(products, lows, start.x, start.g, stop, sys.maxsize, p, counters,
+                          carry=start.carry, warm_start=not from_low, exact_gradient=exact,
+                          recompute_every=RECOMPUTE_EVERY, floor=floor,
+                          model_error=start.model_error, prev_residual=start.residual,
+                          fallback_seed=carried, low_points=low_points)
+    ctx.info.update(products.as_dict())
     ctx.info["rank"] = len(out.pairs)
     ctx.info["low"] = ",".join(names)
-    return _finish(ctx, out, counters, out.pairs)
+    return _finish(ctx, out, counters)
 
 
 @register_solver("bi-pqn", BiPQNParams, multifidelity=LowOperators(one="low"))
 def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
-    """Bi-fidelity proximal quasi-Newton method (the method paper's Bi-PQN algorithm).
+    """Bi-fidelity proximal quasi-Newton method (Algorithm 3 of the method paper).
 
     ``B^(0) = A_low`` (the operator named by ``low``); each outer iteration
-    solves the paper's PQN subproblem,
+    solves the paper's PQN subproblem (Section 5.2),
     ``min_{z>=0} 1/2 z'Bz + (A x + b - B x)'z``, by Mono-PQN with B-products (one
     low-fidelity MVP plus O(n r) each), warm-started at ``x`` where its gradient
     is the known ``A x + b``; the subproblem's secant pairs are carried to the
-    next one with ``Y <- Y - (u u' - v v') S`` (appendix "Across Subproblem
-    Secant Conditions"); the BFGS correction of ``B`` takes ``B s`` from the
+    next one with ``Y <- Y - (u u' - v v') S`` (appendix D.2, "Across
+    Subproblem Secant Conditions"); the BFGS correction of ``B`` takes ``B s`` from the
     inner gradients (no extra low MVP); one high-fidelity MVP ``A p`` per outer
-    iteration and the optimal over-relaxation of the paper's step-size algorithm. Start:
+    iteration and the optimal over-relaxation of Algorithm 2. Start:
     the paper's low-fidelity initialisation (Mono-PQN on the low-fidelity
     problem from ``x^(-1) = x0``, no high-fidelity product before it), then
     the first high MVP at its answer ``x^(0)``, which also gives the free
@@ -343,7 +314,7 @@ def bi_pqn(ctx: SolverContext, p: BiPQNParams) -> SolveResult:
 def multi_pqn(ctx: SolverContext, p: MultiPQNParams) -> SolveResult:
     """Multi-fidelity PQN: Bi-PQN whose subproblems are solved by Bi-PQN on a cheaper operator.
 
-    An extension beyond the paper (its "Conclusions and Future Work"): with
+    An extension beyond the paper (its Section 7, "Conclusions and Future Work"): with
     ``lows = [L1, L2, ..., Lm]`` the outer level is Bi-PQN with ``B^(0) = L1``;
     its subproblem ``min 1/2 (z-x)'B(z-x) + g'(z-x)`` is solved by Bi-PQN with
     ``B'^(0) = L2``, and so on, the last level by Mono-PQN. Each level carries

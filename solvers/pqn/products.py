@@ -1,22 +1,93 @@
-"""PQN's products of the new point (``products=iterate``), optionally loose (``relax``).
+"""PQN's product rules: what the iteration's one product with ``Q`` is applied to.
 
-:class:`IterateProducts` is handed to a PQN level (:mod:`lcpbench.toolkit.pqn_levels`) in
-place of its product ``Q p``: it applies the operator to the new point and forms ``Q p`` by
-difference, tracking the error bounds that decide when the difference is usable, how
-accurately a product may be made, and when the known ``Q x`` needs refreshing.  The accuracy
-argument is in its docstring.
+Algorithm 1 and Algorithm 3 of the method paper make one product per iteration, ``Q p``
+for the direction ``p``, and move the gradient by the recurrence ``G + eta Q p`` (Remark 2).
+A :class:`ProductRule` makes that product for the loop:
+
+* :class:`DirectionProducts`: ``Q p``, as in the paper (``products=paper``);
+* :class:`IterateProducts`: ``Q (x + p) - Q x``, the product of the new point, optionally
+  made to a looser accuracy (``products=iterate``, ``relax``). Its accuracy argument is in
+  its docstring.
+
+The loops call :meth:`ProductRule.product` once per iteration, :meth:`ProductRule.stepped`
+after the step and :meth:`ProductRule.restart` after an exact gradient, and never ask
+which rule they hold.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Optional
+from dataclasses import dataclass
+from typing import Optional, Protocol
 
 import numpy as np
 
 from lcpbench.core.residuals import kkt_abs
 
-__all__ = ["IterateProducts"]
+__all__ = ["ProductRule", "DirectionProducts", "IterateProducts", "LowPoints"]
+
+
+class ProductRule(Protocol):
+    """How a PQN loop gets ``Q p`` for its step from ``z`` (gradient ``G``) along ``p``."""
+
+    def product(self, z: np.ndarray, G: np.ndarray, p: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """``(Q p, G)``: the product and the gradient to step from (``G`` itself, or
+        ``G`` recomputed when the rule had to refresh it)."""
+
+    def stepped(self, eta: float) -> None:
+        """The step ``z + eta p`` was taken."""
+
+    def restart(self) -> None:
+        """The gradient was recomputed exactly by the loop."""
+
+    def model_error(self, rho: Optional[float]) -> None:
+        """Bi-PQN measured its model's relative error ``rho`` along a step."""
+
+    def as_dict(self) -> dict:
+        """Counters for ``SolveResult.info``."""
+
+
+class DirectionProducts:
+    """The paper's product ``Q p`` of the direction (``products=paper``)."""
+
+    def __init__(self, apply: Callable[[np.ndarray], np.ndarray]):
+        self.apply = apply
+
+    def product(self, z: np.ndarray, G: np.ndarray, p: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        return self.apply(p), G
+
+    def stepped(self, eta: float) -> None:
+        pass
+
+    def restart(self) -> None:
+        pass
+
+    def model_error(self, rho: Optional[float]) -> None:
+        pass
+
+    def as_dict(self) -> dict:
+        return {}
+
+
+@dataclass(frozen=True)
+class LowPoints:
+    """Bi-PQN with ``products=iterate``: the low fidelity's products are of points too.
+
+    Parameters
+    ----------
+    rtol : float
+        The low operator's relative accuracy (declared, or 0 for a matrix).
+    relax : float
+        The solve's ``relax``.
+    within : callable, optional
+        ``within(v, rtol)``: the low's product to a looser accuracy (None: it has one).
+    """
+
+    rtol: float
+    relax: float = 0.0
+    within: Optional[Callable] = None
 
 
 class IterateProducts:
@@ -81,6 +152,8 @@ class IterateProducts:
 
     Parameters
     ----------
+    apply : callable
+        The level's product ``Q v``.
     b : ndarray or None
         The linear term: the known ``A x`` is ``G - b`` (ignored with ``known``).
     rtol : float
@@ -96,9 +169,6 @@ class IterateProducts:
         Bi-PQN subproblem's ``B = A_low + U U' - V V'``, whose low-rank part is exact).
     error : float, optional
         Error bound of the first ``known`` (default ``rtol ||A x||``).
-    low_rtol : float, optional
-        The top level's note for Bi-PQN: the low fidelity's accuracy when its
-        products may be of points too (None: they are of directions).
     relax : float
         Loose products: the gradient's allowed error as a fraction of the natural
         residual (0: every product at full accuracy).
@@ -111,19 +181,18 @@ class IterateProducts:
     #: The loosest accuracy a product of a point is asked for.
     LOOSEST = 0.1
 
-    def __init__(self, b: Optional[np.ndarray], rtol: float, tol: float, *,
+    def __init__(self, apply: Callable[[np.ndarray], np.ndarray], b: Optional[np.ndarray],
+                 rtol: float, tol: float, *,
                  base: Optional[Callable] = None, known: Optional[Callable] = None,
                  correction: Optional[Callable] = None, error: Optional[float] = None,
-                 low_rtol: Optional[float] = None, n: Optional[int] = None,
-                 relax: float = 0.0, within: Optional[Callable] = None):
+                 n: Optional[int] = None, relax: float = 0.0,
+                 within: Optional[Callable] = None):
         size = n if n is not None else (b.shape[0] if b is not None else 1)
+        self.apply = apply
         self.b, self.tol = b, tol
         self.rtol = max(float(rtol), 16 * np.finfo(float).eps * np.sqrt(max(size, 1)))
         self.base, self.known, self.correction = base, known, correction
         self.error = error            # bound on the error of the known A x (None: rtol ||A x||)
-        self.low_rtol = low_rtol
-        #: the top level's note for Bi-PQN: the low's loose products (``within`` of the low)
-        self.low_within: Optional[Callable] = None
         self.on = True
         self.made = 0                 # products of points
         self.direct = 0               # differences replaced by a product of p
@@ -134,22 +203,23 @@ class IterateProducts:
         self.relax, self.within = float(relax), within
         self.loose: list = []         # accuracy asked of each loose product
         self.cap = 0.1 * tol          # a loose difference's error, relative to ||A p||
-        self.fresh: Optional[np.ndarray] = None   # a refreshed gradient for the level
         self.refreshed = 0            # products of the iterate that refreshed A x
         self._ratio: Optional[float] = None   # ||A p|| / ||p|| of the last step
         self._res: Optional[float] = None     # the natural residual at the last product
 
-    def __call__(self, apply: Callable, z: np.ndarray, G: np.ndarray, p: np.ndarray
-                 ) -> np.ndarray:
-        """``Q p`` for the step from ``z`` (gradient ``G``) along ``p``."""
+    def product(self, z: np.ndarray, G: np.ndarray, p: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """``(Q p, G)`` for the step from ``z`` (gradient ``G``) along ``p``; ``G`` is
+        recomputed when the known ``A x`` was refreshed."""
         if not self.on:
-            return self._direct(apply, p)
+            return self._direct(p), G
+        apply, G_step = self.apply, G
         Az = self.known(z, G) if self.known is not None else G - self.b
         if self.error is None:
             self.error = self.rtol * float(np.linalg.norm(Az))
         if self._stale(z, p, Az):
             Az = (self.base or apply)(z)
-            self.fresh, self.error = Az + self.b, self.rtol * float(np.linalg.norm(Az))
+            G_step, self.error = Az + self.b, self.rtol * float(np.linalg.norm(Az))
             self.refreshed += 1
         rtol = self._accuracy(z, G, p, Az)
         if rtol > self.rtol:
@@ -177,9 +247,9 @@ class IterateProducts:
             self.on, self.switched = False, self.made
         if not rel <= self.tol:
             self.direct += 1
-            return self._direct(apply, p)
+            return self._direct(p), G_step
         self._point = True
-        return Ap + self.correction(p) if self.correction is not None else Ap
+        return (Ap + self.correction(p) if self.correction is not None else Ap), G_step
 
     def _predicted(self, z: np.ndarray, p: np.ndarray, scale: float) -> float:
         """``||A p||`` predicted from the last step's ratio ``||A p|| / ||p||`` (before any
@@ -239,9 +309,9 @@ class IterateProducts:
         if rho is not None and np.isfinite(rho):
             self.cap = min(0.1 * self.tol, 0.1 * float(rho))
 
-    def _direct(self, apply: Callable, p: np.ndarray) -> np.ndarray:
+    def _direct(self, p: np.ndarray) -> np.ndarray:
         """The paper's product ``Q p`` (its error ``rtol ||Q p||`` kept for :meth:`stepped`)."""
-        Qp = apply(p)
+        Qp = self.apply(p)
         self._point, self._last = False, self.rtol * float(np.linalg.norm(Qp))
         return Qp
 
