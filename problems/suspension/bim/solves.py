@@ -71,7 +71,7 @@ class KrylovSolves:
         ``eps_gmres`` (never tighter: ``max(rtol, eps_gmres)``).
 
         For a solver that needs a product only to a known accuracy (inexact products,
-        :class:`lcpbench.toolkit.pqn_levels.IterateProducts`): the solve stops earlier,
+        :class:`lcpbench.solvers.pqn.products.IterateProducts`): the solve stops earlier,
         the directions it adds to the recycled spaces are exact images, so later products
         at full accuracy lose nothing.  The quadrature stays that of ``eps_gmres``.
 
