@@ -59,13 +59,14 @@ class DirectionProducts:
         return self.apply(p), G
 
     def stepped(self, eta: float) -> None:
-        pass
+        """Nothing to update: the product of the direction carries no known ``A x``."""
 
     def restart(self) -> None:
-        pass
+        """Nothing to restart: no product is kept from one iteration to the next."""
 
     def model_error(self, rho: Optional[float]) -> None:
-        pass
+        """Unused: the paper's products are made at full accuracy whatever the model's
+        error."""
 
     def as_dict(self) -> dict:
         return {}
