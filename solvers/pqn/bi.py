@@ -249,7 +249,7 @@ def _subproblem(st: _Bi, z: np.ndarray, G: np.ndarray) -> _Direction:
     points = _low_points(st, B, model, z, G)
     with np.errstate(over="ignore", invalid="ignore"):
         inner, inner_new = _solve_sub(B, points, inner_stop, cap, st.lows, z, G, st.inner,
-                                      opts, counters)
+                                      opts=opts, counters=counters)
     counters.inner_iterations += inner.iterations
     if points is not None:
         counters.low_iterate_products += points.made
@@ -383,7 +383,8 @@ def low_start(lows: list[Callable[[np.ndarray], np.ndarray]], z: np.ndarray, b: 
         sub = IterateProducts(L, b, low_points.rtol, DIFFERENCE_TOL, relax=low_points.relax,
                               within=low_points.within)
     with np.errstate(over="ignore", invalid="ignore"):
-        out, inner = _solve_sub(L, sub, stop, WARM_MAX_ITER, lows, z, Gl, None, opts, counters)
+        out, inner = _solve_sub(L, sub, stop, WARM_MAX_ITER, lows, z, Gl, None, opts=opts,
+                                counters=counters)
     counters.inner_iterations += out.iterations
     if out.outcome is Outcome.UNBOUNDED or not (np.all(np.isfinite(out.z))
                                                 and np.all(np.isfinite(out.G))):
@@ -408,7 +409,7 @@ def low_start(lows: list[Callable[[np.ndarray], np.ndarray]], z: np.ndarray, b: 
 
 def _solve_sub(apply: Callable[[np.ndarray], np.ndarray], points: Optional[IterateProducts],
                stop: Stop, cap: int, lows: list[Callable[[np.ndarray], np.ndarray]],
-               z: np.ndarray, G: np.ndarray, inner: Inner, opts: BiParamsBase,
+               z: np.ndarray, G: np.ndarray, inner: Inner, *, opts: BiParamsBase,
                counters: Counters) -> tuple[LevelResult, Inner]:
     """The paper's PQN subproblem, solved by the next level down (Mono-PQN or Bi-PQN)."""
     rule: ProductRule = points if points is not None else DirectionProducts(apply)
