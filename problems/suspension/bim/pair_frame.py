@@ -306,7 +306,6 @@ class PairFrame:
         C = -(-items.shape[0] // LANES)
         pad = np.full((C * LANES, 2), -1, dtype=np.int64)
         pad[:items.shape[0]] = items
-        first = pad[:, 0]
         vals = np.zeros((C * LANES, keep.size))
         if items.shape[0]:
             vals[:items.shape[0]] = table.values(rho[items[:, 0]], columns=keep)
@@ -326,7 +325,6 @@ class PairFrame:
             cs[has, d, 3] = np.sin(m * theta[kk, None])
             ids[0, has, d] = tgt[kk]
             ids[1, has, d] = src[kk]
-        del first
         left = np.asarray(left_matrix, dtype=float)
         dev = np.nonzero(np.abs(left - np.eye(nv)).max(axis=1) > 1e-12)[0].astype(np.int64)
         return cls(
