@@ -1,13 +1,18 @@
 #!/usr/bin/env bash
 # The method paper's online comparison (its section "Online Comparison": BB-PGD, Mono-PQN and
 # Bi-PQN simulating lattices of 3x3x3, 4x4x4, ... spheres, one LCP per time step, high fidelity
-# BIM p = 8 at eps_gmres 1e-8). By default on the paper authors' scene (paper-lattice: 0.3a
-# kept separation) with Bi-PQN's low fidelity the distance-split p8f6e3 (docs/mobility.md);
-# SCENE=lattice LOW=p4 gives the packed 0.1a scene with the paper's own online low (BIM p = 4
-# at eps 1e-8).
+# BIM p = 8 at eps_gmres 1e-8), on the paper authors' scene (paper-lattice: 0.3a kept
+# separation), in one of two regimes (REGIME, `lcpbench simulate --regime`):
 #
-#   bash sweeps/online-paper.sh [OUT] [STEPS]          # default reports/online-paper, 100 steps,
-#                                                      # lattices 3x3x3, 4x4x4 and 5x5x5
+# - REGIME=paper: the paper's own: no Krylov recycling, no quasi-Newton memory across time
+#   steps, the paper's products, and the paper's online low fidelity BIM p = 4 at eps 1e-8;
+# - REGIME=default: lcpbench's defaults: recycling on, quasi-Newton memory across steps, and
+#   Bi-PQN's low fidelity the distance-split p8f6e3 (docs/mobility.md).
+#
+# SCENE=lattice gives the packed 0.1a scene instead.
+#
+#   bash sweeps/online-paper.sh [OUT] [STEPS]          # default reports/paper/online-$REGIME,
+#                                                      # 200 steps, lattices 3x3x3 to 5x5x5
 #   LATTICES=6 SEPARATE=1 bash sweeps/online-paper.sh  # the 6x6x6 lattice, one solver per process
 #   SOLVERS="bb-pgd mono-pqn:products=iterate" bash sweeps/online-paper.sh   # other solvers
 #   SCENE=lattice LOW=p4 bash sweeps/online-paper.sh reports/online-p4 100
@@ -24,10 +29,17 @@
 # each holds only its own operator and all see the same load on average (not step by step);
 # resuming works the same.
 set -euo pipefail
-OUT=${1:-reports/online-paper}
-STEPS=${2:-100}
+REGIME=${REGIME:-default}
+case "${REGIME}" in
+    paper) DEFAULT_LOW=p4 ;;
+    default) DEFAULT_LOW=p8f6e3 ;;
+    *) echo "online-paper.sh: REGIME=${REGIME} is not a regime; use REGIME=paper or REGIME=default" >&2
+       exit 2 ;;
+esac
+OUT=${1:-reports/paper/online-${REGIME}}
+STEPS=${2:-200}
 SCENE=${SCENE:-paper-lattice}
-LOW=${LOW:-p8f6e3}
+LOW=${LOW:-${DEFAULT_LOW}}
 CHUNK=${CHUNK:-10}
 if [ -n "${SOLVERS:-}" ]; then
     read -r -a SOLVERS <<< "${SOLVERS}"
@@ -43,13 +55,15 @@ for m in ${LATTICES:-3 4 5}; do
         while [ "$k" -lt "$STEPS" ]; do
             k=$(( k + CHUNK > STEPS ? STEPS : k + CHUNK ))
             for s in "${SOLVERS[@]}"; do
-                lcpbench simulate --scene "$spec" --solver "$s" --steps "$k" --out "${OUT}"
+                lcpbench simulate --regime "${REGIME}" --scene "$spec" --solver "$s" --steps "$k" \
+                    --out "${OUT}"
             done
         done
     else
         args=()
         for s in "${SOLVERS[@]}"; do args+=(--solver "$s"); done
-        lcpbench simulate --scene "$spec" "${args[@]}" --steps "${STEPS}" --out "${OUT}"
+        lcpbench simulate --regime "${REGIME}" --scene "$spec" "${args[@]}" --steps "${STEPS}" \
+            --out "${OUT}"
     fi
 done
 lcpbench report "${OUT}"

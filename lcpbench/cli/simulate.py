@@ -7,6 +7,7 @@ import sys
 
 from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core.defaults import EXAMPLE_SCENE, SIMULATE_SOLVER
+from lcpbench.workflows.regimes import DEFAULT_REGIME, PAPER_ONLINE_LOW, REGIMES
 
 __all__ = ["add_simulate_parser", "cmd_simulate"]
 
@@ -39,7 +40,13 @@ def add_simulate_parser(sub) -> None:
     p.add_argument("--qn-memory", action=argparse.BooleanOptionalAction, default=None,
                    help="start each PQN solve's quasi-Newton model from the previous step's "
                         "secant pairs, mapped by contact identity (default: on; "
-                        "docs/benchmarks.md, \"Quasi-Newton memory across time steps\")")
+                        "docs/benchmarks.md, \"Quasi-Newton memory across time steps\"; "
+                        "off under --regime paper)")
+    p.add_argument("--regime", choices=sorted(REGIMES), default=DEFAULT_REGIME,
+                   help="paper: the method paper's online regime (no Krylov recycling, "
+                        "no quasi-Newton memory across steps, the paper's products; its low "
+                        f"fidelity is {PAPER_ONLINE_LOW}); default: lcpbench's (recycling "
+                        "and memory on). Recorded in meta.json and every row")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_simulate)
 
@@ -51,7 +58,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from lcpbench.cli.run import check_not_foreign
     from lcpbench.workflows.simulate import (
         DEFAULT_OVERLAP_TOL,
-        DEFAULT_QN_MEMORY,
         Interrupted,
         simulate,
     )
@@ -62,7 +68,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     try:
         rows = simulate(args.scene, args.solver or [SIMULATE_SOLVER], args.steps, out,
                         warm_start=not args.no_warm_start,
-                        qn_memory=DEFAULT_QN_MEMORY if args.qn_memory is None else args.qn_memory,
+                        qn_memory=args.qn_memory, regime=args.regime,
                         progress=not args.quiet,
                         tol=args.tol, stop=args.stop, max_emvps=args.max_emvps,
                         overlap_tol=DEFAULT_OVERLAP_TOL if args.overlap_tol is None

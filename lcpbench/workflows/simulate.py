@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import sys
 import threading
@@ -61,6 +62,7 @@ from lcpbench.workflows.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from lcpbench.workflows.regimes import DEFAULT_REGIME, REGIMES, apply_regime
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "DEFAULT_QN_MEMORY", "Interrupted"]
 
@@ -72,7 +74,7 @@ class Interrupted(RuntimeError):
 DEFAULT_OVERLAP_TOL = 1e-2
 
 #: Default of ``qn_memory`` (see docs/benchmarks.md, "Quasi-Newton memory across time steps").
-DEFAULT_QN_MEMORY = True
+DEFAULT_QN_MEMORY = REGIMES[DEFAULT_REGIME].qn_memory
 
 
 def _check_solver(spec: str, lows: Sequence[str], scene_spec: str):
@@ -112,7 +114,8 @@ def _request_stop(signum, frame):
 
 def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int,
              out_dir: Union[str, Path], *, warm_start: bool = True,
-             qn_memory: bool = DEFAULT_QN_MEMORY, progress: bool = True,
+             qn_memory: Optional[bool] = None, regime: str = DEFAULT_REGIME,
+             progress: bool = True,
              tol: float = 1e-8, stop: str = "paper", max_emvps: float = 5000.0,
              max_seconds: Optional[float] = None,
              overlap_tol: float = DEFAULT_OVERLAP_TOL,
@@ -137,14 +140,20 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         finished step (same settings required; a larger ``steps`` extends it).
     warm_start : bool
         Start each solve from the previous step's forces matched by pair identity.
-    qn_memory : bool
+    qn_memory : bool, optional
         Start each PQN solve's quasi-Newton model from the previous step's
         secant pairs, mapped onto the new contacts by pair identity (the
-        scene's ``carry_memory``); other solvers ignore it. On by default (what
-        it saves: docs/benchmarks.md, "Quasi-Newton memory across time steps").
+        scene's ``carry_memory``); other solvers ignore it. ``None`` takes the
+        regime's (on in ``default``: what it saves is in docs/benchmarks.md,
+        "Quasi-Newton memory across time steps"; off in ``paper``).
         Part of the simulation's settings:
         a resume with the other choice is refused (simulations stored before
         the switch existed ran without the memory).
+    regime : str
+        ``default`` or ``paper`` (:mod:`lcpbench.workflows.regimes`): ``paper`` runs
+        without Krylov recycling (``krylov_mb=0`` is added to the scene spec), without
+        memory across steps, and refuses solvers with other than the paper's products.
+        Recorded in ``meta.json`` and in every row's ``info``.
     progress : bool
         Show a tqdm progress bar per simulation (on stderr).
     tol, stop : stop rule of every solve (``paper`` or ``kkt``).
@@ -172,9 +181,11 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
 
     specs = _check_inputs(solver_spec, steps, overlap_tol)
     make_stop_rule(stop, tol)
-    run = SimSettings(scene_spec=str(scene_spec).strip(), tol=tol, stop=stop,
-                      warm_start=warm_start, qn_memory=qn_memory, max_emvps=max_emvps,
-                      max_seconds=max_seconds, overlap_tol=float(overlap_tol))
+    chosen = apply_regime(regime, str(scene_spec), specs, qn_memory)
+    run = SimSettings(scene_spec=chosen.scene_spec, tol=tol, stop=stop,
+                      warm_start=warm_start, qn_memory=chosen.qn_memory, max_emvps=max_emvps,
+                      max_seconds=max_seconds, overlap_tol=float(overlap_tol),
+                      regime=chosen.regime)
     run.budget()                                   # a bad budget is refused before any write
     probe = make_scene(run.scene_spec)             # validates the scene before any work
     infos = {s: _check_solver(s, [str(x) for x in probe.params.low], run.scene_spec)
@@ -204,6 +215,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
             if in_main:
                 signal.signal(signal.SIGTERM, previous)
         meta["finished"] = utc_now()
+        meta["load_average_finished"] = _load_average()
         store.write_meta(meta)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
@@ -220,6 +232,7 @@ class SimSettings:
     max_emvps: float
     max_seconds: Optional[float]
     overlap_tol: float
+    regime: str = DEFAULT_REGIME
 
     @property
     def scene_name(self) -> str:
@@ -236,7 +249,8 @@ class SimSettings:
         return {"scene": self.scene_spec, "solver": spec, "tol": float(self.tol),
                 "stop": self.stop, "warm_start": bool(self.warm_start),
                 "qn_memory": bool(self.qn_memory), "max_emvps": self.max_emvps,
-                "max_seconds": self.max_seconds, "overlap_tol": float(self.overlap_tol)}
+                "max_seconds": self.max_seconds, "overlap_tol": float(self.overlap_tol),
+                "regime": self.regime}
 
 
 @dataclasses.dataclass
@@ -283,8 +297,9 @@ def _resume_point(store: RunStore, run: SimSettings, spec: str
     path = checkpoint_path(store.path, _sim_key(run.scene_spec, spec, run.warm_start))
     if path.exists():
         ckpt = load_checkpoint(path)
-        # checkpoints from before the switch existed ran without the memory
-        ckpt.config = {"qn_memory": False, **ckpt.config}
+        # checkpoints from before the switches existed ran without the memory, and in
+        # lcpbench's default regime
+        ckpt.config = {"qn_memory": False, "regime": DEFAULT_REGIME, **ckpt.config}
         if ckpt.config != settings:
             changed = sorted(k for k in settings if settings[k] != ckpt.config.get(k))
             raise ValueError(f"{store.path} holds the simulation of {run.scene_spec!r} with "
@@ -309,11 +324,12 @@ def _start_meta(store: RunStore, run: SimSettings, specs: list, steps: int, prob
               "stop": run.stop, "warm_start": bool(run.warm_start),
               "qn_memory": bool(run.qn_memory), "max_emvps": run.max_emvps,
               "max_seconds": run.max_seconds, "overlap_tol": run.overlap_tol,
-              "scene_params": dataclasses.asdict(probe.params)}
+              "regime": run.regime, "scene_params": dataclasses.asdict(probe.params)}
     meta = dict(old)
     meta.update({"argv": list(argv) if argv is not None else meta.get("argv", []),
                  "command": "simulate", "started": utc_now(), "finished": None,
-                 "machine": machine_info(), "git_commit": git_commit()})
+                 "machine": machine_info(), "git_commit": git_commit(),
+                 "load_average": _load_average(), "load_average_finished": None})
     meta.setdefault("config", config)
     sims = list(meta.get("simulations", []))
     if json.dumps(config, sort_keys=True, default=str) not in \
@@ -322,6 +338,15 @@ def _start_meta(store: RunStore, run: SimSettings, specs: list, steps: int, prob
     meta["simulations"] = sims
     store.write_meta(meta)
     return meta
+
+
+def _load_average() -> Optional[list]:
+    """The machine's 1, 5 and 15 minute load averages (``None`` where the system has none),
+    recorded beside the run so a reader knows what else was running."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
 
 
 def _lows_for(spec: str, info, scene_lows: Sequence[str]) -> tuple:
@@ -399,7 +424,7 @@ def _one_simulation(job: SimulationJob):
                 commit(row, None, finished=True)
                 print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
                 break
-            row = _step_row(base.row(rec.step), rec, limit)
+            row = _step_row(base.row(rec.step), rec, limit, run.regime)
             row.update({"started": started, "finished": utc_now()})
             commit(row, rec.result.history, finished=False)
             bar.set_postfix(n=rec.n, emvps=f"{rec.result.emvps:.1f}",
@@ -411,7 +436,7 @@ def _one_simulation(job: SimulationJob):
     return _stored_rows(store, prefix)
 
 
-def _step_row(row: dict, rec: StepRecord, limit: float) -> dict:
+def _step_row(row: dict, rec: StepRecord, limit: float, regime: str) -> dict:
     """The result row of a finished step (``row`` holds the simulation's columns): status,
     counts, times, and the overlap check against ``limit``."""
     res = rec.result
@@ -425,7 +450,8 @@ def _step_row(row: dict, rec: StepRecord, limit: float) -> dict:
              "setup_solves": rec.setup_solves, "update_solves": rec.update_solves,
              "warm_entries": rec.warm_entries,
              "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
-             **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs}
+             **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs,
+             "regime": regime, "load_1min": (_load_average() or [None])[0]}
     row.update({
         "n": rec.n, "status": res.status.value, "message": message,
         **result_fields(res), "sim_total_s": rec.total_s,

@@ -122,6 +122,12 @@ class LatticeParams(CheckedParams):
         evaluated at every step, and the active contacts sit where that model
         still means something (docs/mobility.md, "Measured choices behind the
         defaults").
+    krylov_mb : float
+        Memory budget (MB) of the Krylov directions the boundary-integral operators of
+        one step keep and reuse across products (:class:`.bim.recycle.KrylovBudget`;
+        default 256); 0 switches recycling off, as in the method paper
+        (``lcpbench simulate --regime paper`` sets it).  Results agree to the GMRES
+        tolerance either way; the cost of a product does not.
     """
 
     m: Annotated[int, Bounds(ge=1)] = 3
@@ -141,6 +147,7 @@ class LatticeParams(CheckedParams):
     jitter: Annotated[float, Bounds(ge=0)] = 0.5
     target: Annotated[float, Bounds(ge=0)] = 0.5
     separation: Annotated[float, Bounds(ge=0)] = 0.1
+    krylov_mb: Annotated[float, Bounds(ge=0)] = ContactOptions.krylov_mb
 
     def __post_init__(self) -> None:
         super().__post_init__()              # the declared bounds
@@ -268,14 +275,10 @@ class LatticeScene:
         ``"direct"`` or ``"fmm"``.  An attribute, not a parameter, so that stored sets
         and simulations keep their recorded parameters; the results agree to the
         tolerance either way.
-    krylov_mb : float
-        Memory budget (MB) of the kept Krylov directions of one step's operators
-        (:class:`.bim.recycle.KrylovBudget`).
     """
 
     fidelity_axes = LATTICE_AXES
     far: str = "auto"
-    krylov_mb: float = ContactOptions.krylov_mb     # bim.recycle.DEFAULT_KRYLOV_MB
     nc_extrapolate: bool = True
     """Start the non-collisional solve from the two previous densities extrapolated
     (:meth:`nc_guess`); False: from the previous density."""
@@ -451,7 +454,7 @@ class LatticeScene:
                                  model=P.model, p=P.p, eps_gmres=P.eps_gmres, mu=P.mu,
                                  low=P.low if lows is None else tuple(lows),
                                  symmetrize=symmetrize, far=self.far,
-                                 krylov_mb=self.krylov_mb)
+                                 krylov_mb=P.krylov_mb)
         problem = build_contact_problem(
             self.centers, self.radii, F, T, options=options,
             name=f"lattice-m{P.m}-step{self.step_index}",
