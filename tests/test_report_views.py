@@ -220,3 +220,26 @@ def test_a_set_solved_for_free_gets_a_note_not_an_empty_box_plot(tmp_path):
     assert html.count("spent 0 E-MVPs") == 1 and "spent 0 E-MVPs" in free
     assert "E-MVPs of the solved runs: paid" in html
     assert "E-MVPs of the solved runs: free" not in html
+
+
+def test_online_steps_that_no_solver_needed_a_product_for_are_apart():
+    def step(solver, k, total, mvps):
+        return {"run_id": f"on|{solver}|{k}", "kind": "online", "problem": "lattice:m=2",
+                "problem_params": '{"m": 2}', "solver": solver, "solver_name": solver,
+                "step": k, "n": 4, "time_s": total / 2, "sim_total_s": total,
+                "emvps": mvps, "mvps": mvps, "lofi_mvps_total": 0.0, "solved": True,
+                "multifidelity": False, "max_overlap": 0.0}
+    # step 0 warm-up; steps 1-3 contacts far apart (x = 0 read off b); step 4 only mono-pqn
+    # needed no product (a real difference: kept); steps 4-5 compared
+    rows = [step(s, 0, 50.0, 0.0) for s in ("bb-pgd", "mono-pqn")]
+    rows += [step(s, k, 1.0, 0.0) for k in (1, 2, 3) for s in ("bb-pgd", "mono-pqn")]
+    rows += [step("bb-pgd", 4, 4.0, 6.0), step("mono-pqn", 4, 1.0, 0.0),
+             step("bb-pgd", 5, 6.0, 10.0), step("mono-pqn", 5, 4.0, 8.0)]
+    res = pd.DataFrame(rows)
+    t = tables.online_paper_table(res, "bb-pgd").iloc[0]
+    assert t["steps"] == 2
+    assert t["mono-pqn total speedup"] == pytest.approx(10.0 / 5.0)
+    assert t["bb-pgd median E-MVPs"] == pytest.approx(8.0)           # not 0
+    apart = tables.online_left_out(res).set_index(["solver", "reason"])
+    assert apart.loc[("bb-pgd", "no products"), "steps"] == "1,2,3"
+    assert apart.loc[("mono-pqn", "no products"), "total s"] == 3.0

@@ -1,5 +1,5 @@
 """The ``lcpbench`` command: ``list``, ``solve``, ``run``, ``report``, ``simulate``,
-``generate``, ``check``.
+``generate``, ``check``, ``paper``.
 
 Every subcommand returns an exit code; a usage error (unknown solver or
 problem, mistyped parameter, missing file, bad value) is printed as one line on
@@ -18,6 +18,7 @@ from lcpbench import __version__
 from lcpbench.cli.check import add_check_parser
 from lcpbench.cli.generate import add_generate_parser
 from lcpbench.cli.listing import add_list_parser
+from lcpbench.cli.paper import add_paper_parser
 from lcpbench.cli.run import add_report_parser, add_run_parser
 from lcpbench.cli.simulate import add_simulate_parser
 from lcpbench.cli.solve import add_solve_parser
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_simulate_parser(sub)
     add_generate_parser(sub)
     add_check_parser(sub)
+    add_paper_parser(sub)
     return parser
 
 

@@ -379,12 +379,16 @@ def online_common_steps(results: pd.DataFrame) -> dict[str, dict]:
 
 
 def _left_out_steps(on: pd.DataFrame) -> dict[str, dict[str, set]]:
-    """Per scene, the steps kept out of the comparison: warm-up and without contacts.
+    """Per scene, the steps kept out of the comparison: warm-up, without contacts, and
+    without products.
 
     Warm-up: the first step each simulation stored (it pays the one-off compilation of
     the numerical kernels, seconds that say nothing about the solver). Without
     contacts: a step where some simulation of the scene had no contact (``n == 0``):
-    there is no LCP to solve, so its seconds measure everything but the solver.
+    there is no LCP to solve, so its seconds measure everything but the solver. Without
+    products: a step with contacts that no simulation of the scene needed a single
+    product for (every contact apart, so the solution ``x = 0`` is read off ``b``): its
+    E-MVPs are 0 for every solver, and counting it would pull every median to 0.
     """
     out = {}
     for scene, part in on.groupby("problem", sort=True):
@@ -392,7 +396,17 @@ def _left_out_steps(on: pd.DataFrame) -> dict[str, dict[str, set]]:
         warm = set(steps.groupby(part["solver"]).min())
         n = pd.to_numeric(part.get("n", pd.Series(np.nan, index=part.index)), errors="coerce")
         empty = set(steps[n == 0])
-        out[str(scene)] = {"warm-up": warm, "no contacts": empty - warm}
+        products = pd.Series(0.0, index=part.index)
+        for col in ("mvps", "lofi_mvps_total"):
+            if col in part:
+                products += pd.to_numeric(part[col], errors="coerce").fillna(0.0)
+        if "mvps" in part:
+            worked = set(steps[products > 0])
+            idle = set(steps) - worked
+        else:                                     # stores without the counts: none apart
+            idle = set()
+        out[str(scene)] = {"warm-up": warm, "no contacts": empty - warm,
+                           "no products": idle - empty - warm}
     return out
 
 
@@ -432,7 +446,8 @@ def online_step_rows(results: pd.DataFrame) -> pd.DataFrame:
 def online_left_out(results: pd.DataFrame) -> pd.DataFrame:
     """The online steps kept out of the speedups, reported apart.
 
-    One row per scene, solver and reason (``warm-up``, ``no contacts``): the steps and
+    One row per scene, solver and reason (``warm-up``, ``no contacts``, ``no products``):
+    the steps and
     their summed whole-step and collision-resolution seconds. Empty when none.
     """
     on = online_runs(results)
