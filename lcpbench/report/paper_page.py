@@ -182,7 +182,8 @@ def _left_out_rows(res: pd.DataFrame) -> list[dict]:
 
 def _ranges(steps: Iterable[int]) -> str:
     """``0-6, 9`` for the steps 0, 1, ..., 6, 9."""
-    out, run = [], []
+    out: list[str] = []
+    run: list[int] = []
     for k in sorted(steps):
         if run and k == run[-1] + 1:
             run.append(k)
