@@ -451,9 +451,14 @@ def _raw_apply(impl, X: np.ndarray) -> np.ndarray:
         return impl @ X
     if sp.issparse(impl):
         return np.asarray(impl @ X)
+    # The user's code works on its own copy and hands back an array of its own: an
+    # operator that writes into its input (``cho_solve(..., overwrite_b=True)``) or reuses
+    # its output buffer must not overwrite a vector the framework keeps (a solver's
+    # answer, the iterate it verifies, the product it remembers).
+    X = X.copy()
     if X.ndim == 1:
-        return np.asarray(impl.matvec(X)).reshape(-1)
-    return np.asarray(impl.matmat(X))
+        return np.array(impl.matvec(X)).reshape(-1)
+    return np.array(impl.matmat(X))
 
 
 def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:
