@@ -6,7 +6,7 @@ import dataclasses
 import time
 import traceback
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Optional, Union
 
 import numpy as np
@@ -426,6 +426,9 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         if b is None:
             raise ValueError("b is required when A is given as a matrix or operator")
         n = int(np.size(b))
+        if low is not None and not isinstance(low, Mapping):
+            raise TypeError(f"low= takes a dict of low-fidelity operators by name, got "
+                            f"{type(low).__name__}; pass low={{'coarse': A_low}}")
         A, lows = _with_costs(_operator(A_or_lcp, "high", shape, n),
                               {k: _operator(v, k, shape, n) for k, v in (low or {}).items()},
                               low_cost)
@@ -477,7 +480,10 @@ def _misspelt_keywords(solver: str, params: dict) -> None:
 
 
 def _operator(M, name: str, shape: Optional[tuple], n: int):
-    """``M`` as given, or a counted :class:`Operator` when it is a bare callable."""
+    """``M`` as given (a nested list as an array), or a counted :class:`Operator` when it is
+    a bare callable."""
+    if isinstance(M, (list, tuple)):
+        M = np.asarray(M)
     if callable(M) and not isinstance(M, (LinearOperator, np.ndarray)) and not sp.issparse(M):
         return Operator(M, shape=tuple(shape) if shape is not None else (n, n), name=name)
     if shape is not None and tuple(getattr(M, "shape", ())) != tuple(shape):
