@@ -168,3 +168,13 @@ def test_a_problem_family_from_lcpbench_plugins_is_known_to_solve_and_run(tmp_pa
     assert ran.returncode == 0, ran.stderr
     rows = pd.read_csv(tmp_path / "r" / "results.csv")
     assert rows["problem"].str.startswith("plugin-diagonal").all() and len(rows) == 1
+
+
+def test_a_dok_matrix_and_a_nested_list_with_low_cost_are_solved():
+    import scipy.sparse as sp
+
+    res = lcpbench.solve(sp.dok_matrix(A2), B2, stop="kkt")
+    assert res.solved and np.allclose(res.x, [1 / 3, 1 / 3])
+    res = lcpbench.solve(A2.tolist(), B2, solver="bi-pqn", low={"coarse": A2}, low_cost=0.1,
+                         stop="kkt")
+    assert res.solved and np.allclose(res.x, [1 / 3, 1 / 3])
