@@ -4,6 +4,7 @@ Usage::
 
     python benchmarks/adversarial.py --group accuracy --cases 250      # 2,000 runs
     python benchmarks/adversarial.py --group scaling --cases 250       # 2,000 runs
+    python benchmarks/adversarial.py --group operators --cases 200     # 2,000 runs
     python benchmarks/adversarial.py --group accuracy --cases 4 --solvers mono-pqn  # a slice
 
 Two groups of generators, outside ``benchmarks/fuzz.py``'s distribution:
@@ -25,6 +26,23 @@ scaled by 10^U(-3, 4), n = 4..40. No operator declares ``rtol``.
 * ``psd-planted``: singular ``J J'`` (null directions exist) with a planted solution;
 * ``tiny-eig``: SPD with one eigenvalue 10^U(-12, -7) times the largest, random ``b``.
 
+``operators`` (operators and matrices of the collision problems that broke claims or
+escaped the framework; kind ``i mod 5``; the dense solvers ``pgs`` and ``lemke`` run too,
+so the framework's dense copy of a matrix-free A is exercised):
+
+* ``ill-definite``: SPD with condition 10^U(8, 14) whose eigenvector of the smallest
+  eigenvalue is positive (the false "no solution" of a split certificate), ``b`` planted or
+  random (an SPD LCP has a solution for every ``b``);
+* ``nonsymmetric``: a matrix-free ``S + K`` (``S`` PSD, ``K`` skew, never checked for
+  symmetry by the framework) with a planted solution;
+* ``duplicated``: ``D' M D`` with contacts repeated in ``D`` (singular PSD), planted;
+* ``mutating``: an SPD operator applied by ``cho_solve(..., overwrite_b=True)``, which
+  writes into its input, planted;
+* ``slow``: an SPD operator that sleeps 2 ms per product, planted.
+
+Counted besides the claims: ``crash`` (an exception escaped ``lcpbench.solve``) and
+``hang`` (a solve took longer than twice its time budget plus 5 s).
+
 Each case also draws a warm start: 0, 1e300 on one entry, 1e12 * U(0, 1), a negative
 vector (projected to 0), 1e-300, or 1e150 everywhere. Every MVP-only solver runs at tol
 1e-8 with the paper's stop rule; the multi-fidelity ones get explicit low fidelities
@@ -45,12 +63,14 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import sys  # noqa: E402
+import time  # noqa: E402
 import traceback  # noqa: E402
 from collections import Counter  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 
 import numpy as np  # noqa: E402
 from common import print_outcomes, solver_names  # noqa: E402
+from scipy.linalg import cho_factor, cho_solve  # noqa: E402
 from scipy.sparse.linalg import LinearOperator, cg, gmres  # noqa: E402
 
 import lcpbench  # noqa: E402
@@ -58,7 +78,12 @@ from lcpbench.core.operator import apply_uncounted  # noqa: E402
 from lcpbench.problems.synthetic import random_spd_matrix  # noqa: E402
 
 GROUPS = {"accuracy": ("float32", "mixed", "gmres", "cg-float32"),
-          "scaling": ("spike", "diagonal", "psd-planted", "tiny-eig")}
+          "scaling": ("spike", "diagonal", "psd-planted", "tiny-eig"),
+          "operators": ("ill-definite", "nonsymmetric", "duplicated", "mutating", "slow")}
+#: Solvers that need the dense A, run on the ``operators`` group besides the MVP-only ones.
+DENSE_EXTRA = ("pgs", "lemke")
+#: Seconds a product of the ``slow`` kind sleeps.
+SLOW_PRODUCT_S = 0.002
 STARTS = ("zero", "one-1e300", "huge", "negative", "tiny", "all-1e150")
 MULTI = {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}
 
@@ -156,6 +181,70 @@ def scaling_case(i: int, seed: int) -> tuple[lcpbench.LCP, dict]:
     return lcp, {"kind": kind, "solvable": True, "x0": _start(rng, n, i)}
 
 
+def _positive_low_mode(rng: np.random.Generator, n: int) -> np.ndarray:
+    """SPD, condition 10^U(8, 14), the smallest eigenvalue's eigenvector positive."""
+    u = rng.uniform(0.5, 1.5, n)
+    G = rng.standard_normal((n, n))
+    G[:, 0] = u
+    Q, _ = np.linalg.qr(G)
+    Q[:, 0] *= np.sign(Q[0, 0])                    # the first column is u / ||u|| > 0
+    lam = np.r_[1.0, np.geomspace(10 ** rng.uniform(8, 14), 1.0, n - 1)[::-1]]
+    lam[1:] = np.maximum(lam[1:], 2.0)
+    A = (Q * lam) @ Q.T
+    return (A + A.T) / 2
+
+
+class _Overwriting(LinearOperator):
+    """``M v`` solved as ``inv(M)^-1 v`` in place: the operator overwrites its input."""
+
+    def __init__(self, M: np.ndarray):
+        super().__init__(np.float64, M.shape)
+        self.factor = cho_factor(np.linalg.inv(M))
+
+    def _matvec(self, v):
+        return cho_solve(self.factor, np.ravel(v), overwrite_b=True, check_finite=False)
+
+
+def _slow(M: np.ndarray):
+    def apply(v):
+        time.sleep(SLOW_PRODUCT_S)
+        return M @ np.ravel(v)
+    return apply
+
+
+def operators_case(i: int, seed: int) -> tuple[lcpbench.LCP, dict]:
+    """Case ``i`` of the ``operators`` group; every problem has a solution."""
+    rng = np.random.default_rng([seed, i, 3])
+    kind = GROUPS["operators"][i % 5]
+    n = int(rng.integers(2, 31))
+    op = None
+    if kind == "ill-definite":
+        A = _positive_low_mode(rng, n)
+        b = _planted(rng, A) if rng.random() < 0.5 else rng.standard_normal(n)
+    elif kind == "nonsymmetric":
+        J = rng.standard_normal((n, n))
+        K = rng.standard_normal((n, n)) * 10 ** rng.uniform(-2, 1)
+        A = J @ J.T / n + (K - K.T)
+        b = _planted(rng, A)
+        op = LinearOperator((n, n), matvec=lambda v, A=A: A @ np.ravel(v), dtype=np.float64)
+    elif kind == "duplicated":
+        m = int(rng.integers(max(1, n // 2), n + 1))
+        D = rng.standard_normal((3 * m, m))
+        D = D[:, rng.integers(0, m, n)]            # n contacts, some of them the same one
+        M = random_spd_matrix(rng, 3 * m, float(10 ** rng.uniform(0, 3)))
+        A = D.T @ M @ D
+        A = (A + A.T) / 2
+        b = _planted(rng, A)
+    else:
+        A = random_spd_matrix(rng, n, float(10 ** rng.uniform(0, 4)))
+        b = _planted(rng, A)
+        op = _Overwriting(A) if kind == "mutating" else \
+            LinearOperator((n, n), matvec=_slow(A), dtype=np.float64)
+    high = lcpbench.Operator(A if op is None else op, cost=1.0)
+    lcp = _with_lows(rng, high, (A + A.T) / 2, b, kind)     # the lows: symmetric models
+    return lcp, {"kind": kind, "solvable": True, "x0": _start(rng, n, i // 5 * 4)}
+
+
 def _start(rng: np.random.Generator, n: int, i: int) -> np.ndarray:
     which = STARTS[(i // 4) % len(STARTS)]
     x0 = np.zeros(n)
@@ -194,17 +283,24 @@ def classify(res: lcpbench.SolveResult, lcp: lcpbench.LCP, solvable: bool) -> st
     return "other"
 
 
+def group_solvers(group: str) -> list[str]:
+    """The solvers a group runs: the MVP-only ones, and the dense ones on ``operators``."""
+    return mvp_solvers() + (list(DENSE_EXTRA) if group == "operators" else [])
+
+
 def run_case(args: tuple) -> list[tuple[str, str, str, str]]:
     """``(kind, solver, outcome, detail)`` for each solver on case ``i`` of ``group``."""
     i, seed, group, only, max_emvps, max_seconds = args
+    make = {"accuracy": accuracy_case, "scaling": scaling_case, "operators": operators_case}
     try:
-        lcp, meta = (accuracy_case if group == "accuracy" else scaling_case)(i, seed)
+        lcp, meta = make[group](i, seed)
     except Exception:
         return [("?", "(generator)", "crash", traceback.format_exc(limit=3))]
     out = []
-    for name in mvp_solvers():
+    for name in group_solvers(group):
         if only and name not in only:
             continue
+        t0 = time.perf_counter()
         try:
             res = lcpbench.solve(lcp, solver=MULTI.get(name, name), tol=1e-8,
                                  max_emvps=max_emvps, max_seconds=max_seconds,
@@ -213,6 +309,9 @@ def run_case(args: tuple) -> list[tuple[str, str, str, str]]:
             detail = f"case {i}: {res.summary()} | {res.message[:300]}"
         except Exception:
             outcome, detail = "crash", f"case {i}: {traceback.format_exc(limit=3)}"
+        wall = time.perf_counter() - t0
+        if wall > 2 * max_seconds + 5:
+            outcome, detail = "hang", f"case {i}: {wall:.1f} s | {detail}"
         out.append((meta["kind"], name, outcome, detail))
     return out
 
@@ -231,9 +330,10 @@ def main() -> int:
     if args.cases < 1 or args.jobs < 1 or args.start < 0:
         ap.error("--cases and --jobs must be >= 1, --start >= 0")
     only = tuple(args.solvers or ())
-    unknown = set(only) - set(mvp_solvers())
+    unknown = set(only) - set(group_solvers(args.group))
     if unknown:
-        ap.error(f"--solvers: {sorted(unknown)} are not MVP-only solvers: {mvp_solvers()}")
+        ap.error(f"--solvers: {sorted(unknown)} are not solvers of group {args.group}: "
+                 f"{group_solvers(args.group)}")
     work = [(i, args.seed, args.group, only, args.max_emvps, args.max_seconds)
             for i in range(args.start, args.start + args.cases)]
     counts: Counter = Counter()
@@ -243,7 +343,7 @@ def main() -> int:
             for kind, name, outcome, detail in rows:
                 counts[(name, outcome)] += 1
                 counts[(kind, outcome)] += 0
-                if outcome in ("refuted", "false-infeasible", "crash"):
+                if outcome in ("refuted", "false-infeasible", "crash", "hang"):
                     problems.append(f"{name} on {kind} {detail}")
     return report(args, counts, problems)
 
@@ -253,11 +353,13 @@ def report(args, counts: Counter, problems: list[str]) -> int:
     head = (f"group {args.group}, cases {args.start}..{args.start + args.cases - 1} (seed "
             f"{args.seed}), tol 1e-8, paper's stop rule, budget {args.max_emvps:g} E-MVPs and "
             f"{args.max_seconds:g} s per solve")
-    outcomes = ("converged", "refuted", "infeasible", "false-infeasible", "other", "crash")
-    names = [n for n in mvp_solvers() if any(counts[(n, o)] for o in outcomes)]
+    outcomes = ("converged", "refuted", "infeasible", "false-infeasible", "other", "crash",
+                "hang")
+    names = [n for n in group_solvers(args.group) if any(counts[(n, o)] for o in outcomes)]
     return print_outcomes(head, counts, names, {o: o for o in outcomes}, problems=problems,
                           bad={"refuted": "refuted converged",
-                               "false-infeasible": "false infeasible", "crash": "crashes"})
+                               "false-infeasible": "false infeasible", "crash": "crashes",
+                               "hang": "hangs"})
 
 
 if __name__ == "__main__":

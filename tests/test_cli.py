@@ -140,6 +140,10 @@ def error_folder(tmp_path_factory):
     (root / "mine" / "notes.txt").write_text("the user's own file\n")
     specs = ",".join(f'"planted:count=1,seed={i}"' for i in range(150_000))
     (root / "many.toml").write_text(f'solvers = ["bb-pgd", "mono-pqn"]\nproblems = [{specs}]\n')
+    (root / "empty.toml").write_text("")
+    (root / "table.csv").write_text("a,b\n1,2\n")
+    (root / "foreign").mkdir()
+    (root / "foreign" / "results.csv").write_text("a,b\n1,2\n")
     code = main(["run", "--problem", "tiny", "--solver", "bb-pgd", "--out", str(root / "store"),
                  "--quiet", "--no-report"])
     assert code == 0

@@ -17,6 +17,7 @@ import os
 import sys
 from datetime import datetime
 from pathlib import Path
+from typing import Optional
 
 from lcpbench.cli.options import add_spec_option, add_stop_options
 from lcpbench.core import guards
@@ -31,7 +32,7 @@ from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep, default_sweep, estimate_sweep, load_config
 
 __all__ = ["add_run_parser", "add_report_parser", "cmd_run", "cmd_report", "build_sweep",
-           "check_plan", "check_out_dir", "check_not_foreign"]
+           "check_plan", "check_out_dir", "check_not_foreign", "out_folder"]
 
 #: Files that mark a folder as a run store (``lcpbench run`` or ``simulate`` wrote it).
 STORE_MARKERS = ("results.csv", "meta.json", "history.csv", ".lock", "checkpoints")
@@ -113,6 +114,22 @@ def build_sweep(args: argparse.Namespace) -> Sweep:
     return sweep
 
 
+def out_folder(given: Optional[str], default: Path, flag: str = "--out") -> Path:
+    """The ``--out`` folder: the given one (an empty name refused), else ``default``.
+
+    Raises
+    ------
+    ValueError
+        For ``--out ''`` (which would otherwise fall back to the default folder).
+    """
+    if given is None:
+        return default
+    if not given.strip():
+        raise ValueError(f"{flag} {given!r}: an empty folder name; give a folder, e.g. "
+                         f"{flag} {default.parent / 'my-run'}")
+    return Path(given)
+
+
 def check_out_dir(out: Path, flag: str = "--out") -> None:
     """Refuse an ``--out`` that is a file or cannot be created or written.
 
@@ -192,7 +209,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     sweep = build_sweep(args)
     _check_executor(args)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(args.out) if args.out else Path("reports") / f"run-{stamp}"
+    out = out_folder(args.out, Path("reports") / f"run-{stamp}")
     check_out_dir(out)
     est = estimate_sweep(sweep, force=args.force, progress=not args.quiet)
     if not args.quiet:
@@ -267,7 +284,30 @@ def cmd_report(args: argparse.Namespace) -> int:
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder} is a file, not a run store folder; give the DIR that "
                          "`lcpbench run --out DIR` wrote")
+    _check_baseline(args.baseline)
     html = render_report(folder, baseline=args.baseline,
                          progress=None if args.quiet else stderr_progress())
     print(f"report: {html}")
     return 0
+
+
+def _check_baseline(baseline: str) -> None:
+    """Refuse a ``--baseline`` that names no registered solver, before the report is written.
+
+    Raises
+    ------
+    ValueError
+        Naming the value and the closest solver names.
+    """
+    import difflib
+
+    from lcpbench.core.registry import solvers
+    from lcpbench.core.specs import parse_spec
+
+    name = parse_spec(baseline)[0]
+    known = sorted(solvers())
+    if name not in known:
+        close = difflib.get_close_matches(name, known, n=2)
+        hint = f"did you mean {' or '.join(close)}? " if close else ""
+        raise ValueError(f"--baseline {baseline!r} is no solver; {hint}the report was not "
+                         f"written (solvers: {', '.join(known)})")

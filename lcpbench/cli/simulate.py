@@ -55,15 +55,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from datetime import datetime
     from pathlib import Path
 
-    from lcpbench.cli.run import check_not_foreign
+    from lcpbench.cli.run import check_not_foreign, out_folder
     from lcpbench.workflows.simulate import (
         DEFAULT_OVERLAP_TOL,
         Interrupted,
         simulate,
     )
 
-    out = Path(args.out) if args.out else \
-        Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}"
+    out = out_folder(args.out,
+                     Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}")
     check_not_foreign(out)
     try:
         rows = simulate(args.scene, args.solver or [SIMULATE_SOLVER], args.steps, out,
@@ -84,4 +84,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"collision {float(g['time_s'].sum()):.3g} s of {float(g['sim_total_s'].sum()):.3g}"
               f" s, max overlap {float(g['max_overlap'].max()):.3g}")
     print(f"results: {out / 'results.csv'}")
-    return 0
+    return 1 if _all_stopped_at_start(rows) else 0
+
+
+def _all_stopped_at_start(rows) -> bool:
+    """True (and one line on stderr) when every simulation stopped at its first step."""
+    if rows.empty:
+        print("lcpbench simulate: error: no step was simulated", file=sys.stderr)
+        return True
+    stopped = [str(g["message"].iloc[0]) for _, g in rows.groupby("solver", sort=False)
+               if int(g["step"].max()) == 0
+               and str(g["message"].iloc[-1]).startswith("simulation stopped")]
+    if len(stopped) < rows["solver"].nunique():
+        return False
+    print(f"lcpbench simulate: error: every simulation stopped at step 0 ({stopped[0]}); "
+          "nothing was simulated", file=sys.stderr)
+    return True

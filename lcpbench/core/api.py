@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 import traceback
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Optional, Union
 
 import numpy as np
@@ -18,7 +19,13 @@ from lcpbench.core.deadline import Deadline
 from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.guards import dense_refusal
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import BudgetExhausted, NonFiniteProduct, Operator
+from lcpbench.core.operator import (
+    BudgetExhausted,
+    NonFiniteProduct,
+    Operator,
+    apply_uncounted,
+    dense_uncounted,
+)
 from lcpbench.core.registry import get_solver, solvers
 from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
 from lcpbench.core.result import SolveResult, Status
@@ -117,8 +124,8 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     if verify_history is None:
         verify_history = run.A.explicit
     monitor = Monitor(verify=verify_history, callback=callback)
-    dense, refused = _dense_for(run, info, force)
-    ctx = SolverContext(run, rule, budget, monitor, x0=x0, dense=dense, state=state)
+    refused = _dense_refused(run, info, force)
+    ctx = SolverContext(run, rule, budget, monitor, x0=x0, state=state)
     ctx.info["stop_rule"] = rule.kind
 
     if refused:
@@ -134,7 +141,9 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         try:
             try:
                 with Deadline(budget.max_seconds):
-                    res = _call_solver(info, ctx, p)
+                    # the dense copy is part of the solve: inside its time budget
+                    stopped = _form_dense(ctx, info)
+                    res = stopped if stopped is not None else _call_solver(info, ctx, p)
             except BudgetExhausted as exc:    # the timer fired between the solver's return and here
                 res = _close_at_last(ctx, Status.timeout, str(exc))
             res = _confirm(ctx, res)
@@ -145,22 +154,84 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     return _complete(res, run, ctx, info, p)
 
 
-def _dense_for(run: LCP, info, force: bool) -> tuple[Optional[np.ndarray], Optional[str]]:
-    """The explicit A of a solver registered ``needs_dense``, or why it is not formed.
+def _dense_refused(run: LCP, info, force: bool) -> Optional[str]:
+    """Why the explicit A of a solver registered ``needs_dense`` is not formed, or None.
 
-    The size of the copy is estimated first (:func:`lcpbench.core.guards.dense_refusal`);
-    running out of memory while forming it is reported the same way, never raised.
+    The size of the copy is estimated before anything is built
+    (:func:`lcpbench.core.guards.dense_refusal`).
     """
     if not (info.needs_dense and run.n):
-        return None, None
-    refused = dense_refusal(info.name, run.n, matrix_free=not run.A.explicit, force=force)
-    if refused:
-        return None, refused
+        return None
+    return dense_refusal(info.name, run.n, matrix_free=not run.A.explicit, force=force)
+
+
+#: Columns of the identity applied at once while forming the dense copy of a matrix-free A,
+#: at most: the time budget is checked between blocks.
+DENSE_BLOCK = 256
+
+
+def _form_dense(ctx: SolverContext, info) -> Optional[SolveResult]:
+    """Form ``ctx.dense`` for a solver registered ``needs_dense``; a closing result if it fails.
+
+    The copy is made on the clock of the solve: a matrix-free operator is applied to
+    blocks of the identity and the time budget is checked between blocks (``timeout``).
+    An operator that raises, returns non-finite values or runs out of memory gives a
+    ``failed`` result saying so; nothing is raised.
+    """
+    if not (info.needs_dense and ctx.n):
+        return None
+    what = f"{info.name} needs A as a dense matrix"
     try:
-        return run.dense(), None
+        ctx.dense = _dense_within(ctx)
+    except BudgetExhausted:
+        raise
+    except _DenseTimeout as exc:
+        return SolveResult(x=ctx.x0.copy(), w=np.full(ctx.n, np.nan), status=Status.timeout,
+                           message=f"{what}: {exc}")
     except MemoryError:
-        return None, (f"{info.name} needs A as a dense matrix: forming it (n = {run.n}) ran out "
-                      "of memory; use an MVP-only solver")
+        message = (f"{what}: forming it (n = {ctx.n}) ran out of memory; use an MVP-only "
+                   "solver")
+        return SolveResult(x=ctx.x0.copy(), w=np.full(ctx.n, np.nan), status=Status.failed,
+                           message=message)
+    except Exception as exc:   # the user's operator raised on a column of the identity
+        return SolveResult(x=ctx.x0.copy(), w=np.full(ctx.n, np.nan), status=Status.failed,
+                           message=f"{what}: forming it failed: {type(exc).__name__}: {exc}")
+    bad = ~np.isfinite(ctx.dense)
+    if bad.any():
+        j = int(np.argwhere(bad.any(axis=0))[0, 0])
+        ctx.dense = None
+        return SolveResult(x=ctx.x0.copy(), w=np.full(ctx.n, np.nan), status=Status.failed,
+                           message=(f"operator returned non-finite values while the framework "
+                                    f"formed the dense copy of A (column {j}) for {info.name}"))
+    return None
+
+
+class _DenseTimeout(Exception):
+    """The time budget ran out between blocks of the dense copy."""
+
+
+def _dense_within(ctx: SolverContext) -> np.ndarray:
+    """The dense A, formed in blocks of columns with the time budget checked between them."""
+    if ctx.A.explicit:
+        return dense_uncounted(ctx.A)
+    n, limit = ctx.n, ctx.budget.max_seconds
+    D = np.empty((n, n))
+    j, block = 0, 1
+    while j < n:
+        k = min(block, n - j)
+        E = np.zeros((n, k))
+        E[j + np.arange(k), np.arange(k)] = 1.0
+        t0 = time.perf_counter()
+        D[:, j:j + k] = apply_uncounted(ctx.A, E)
+        j += k
+        spent = time.perf_counter() - t0
+        if limit is not None and j < n and ctx.elapsed() > limit:
+            raise _DenseTimeout(f"the time budget of {limit:g} s ran out while forming it "
+                                f"({j} of {n} columns done)")
+        # about a fiftieth of the budget per block (a tenth of a second without one)
+        room = 0.02 * limit if limit is not None else 0.1
+        block = min(DENSE_BLOCK, 2 * k) if 2 * spent < room else max(1, k // 2)
+    return D
 
 
 def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
@@ -234,9 +305,10 @@ def _verified(ctx: SolverContext, run: LCP, x: np.ndarray, status: Status, messa
         # never 'converged' against the verification
         status, message = verify_claim(ctx, status, x, w_verified, message)
     except Exception as exc:  # the user's operator raised on the verifying product
+        if status != Status.failed:       # an earlier failure keeps its own reason first
+            message = (f"verification failed: {type(exc).__name__}: {exc}"
+                       + (f" (solver: {message})" if message else ""))
         status = Status.failed
-        message = (f"verification failed: {type(exc).__name__}: {exc}"
-                   + (f" (solver: {message})" if message else ""))
     return verified, status, message
 
 
@@ -354,6 +426,9 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         if b is None:
             raise ValueError("b is required when A is given as a matrix or operator")
         n = int(np.size(b))
+        if low is not None and not isinstance(low, Mapping):
+            raise TypeError(f"low= takes a dict of low-fidelity operators by name, got "
+                            f"{type(low).__name__}; pass low={{'coarse': A_low}}")
         A, lows = _with_costs(_operator(A_or_lcp, "high", shape, n),
                               {k: _operator(v, k, shape, n) for k, v in (low or {}).items()},
                               low_cost)
@@ -405,7 +480,10 @@ def _misspelt_keywords(solver: str, params: dict) -> None:
 
 
 def _operator(M, name: str, shape: Optional[tuple], n: int):
-    """``M`` as given, or a counted :class:`Operator` when it is a bare callable."""
+    """``M`` as given (a nested list as an array), or a counted :class:`Operator` when it is
+    a bare callable."""
+    if isinstance(M, (list, tuple)):
+        M = np.asarray(M)
     if callable(M) and not isinstance(M, (LinearOperator, np.ndarray)) and not sp.issparse(M):
         return Operator(M, shape=tuple(shape) if shape is not None else (n, n), name=name)
     if shape is not None and tuple(getattr(M, "shape", ())) != tuple(shape):

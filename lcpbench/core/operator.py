@@ -161,7 +161,9 @@ class Operator(LinearOperator):
                                     "pass a real float64 matrix (e.g. A.astype(float))")
                 arr = np.asarray(arr, dtype=np.float64)
             else:
-                if np.iscomplexobj(arr.data) or not np.issubdtype(arr.dtype, np.number):
+                # dtype, not .data: DOK and LIL matrices have no data array
+                if np.iscomplexobj(np.empty(0, dtype=arr.dtype)) \
+                        or not np.issubdtype(arr.dtype, np.number):
                     raise TypeError(f"operator {name!r}: sparse dtype {arr.dtype} is not real; "
                                     "pass a real float64 matrix")
                 arr = sp.csr_matrix(arr, dtype=np.float64)
@@ -436,6 +438,10 @@ def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:
         raise
     except Exception as exc:
         raise OperatorError(f"operator {op.name!r} raised {type(exc).__name__}: {exc}") from exc
+    if Y.dtype.kind == "c" or not np.issubdtype(Y.dtype, np.number):
+        raise OperatorError(f"operator {op.name!r} returned {Y.dtype} values; the LCP is real, so "
+                            "its matvec must return real numbers (take .real if the imaginary "
+                            "part is rounding)")
     if Y.dtype.kind == "f" and Y.dtype.itemsize < 8:
         op.output_eps = max(op.output_eps, float(np.finfo(Y.dtype).eps))
     want = (op.shape[0],) + X.shape[1:]
@@ -451,9 +457,14 @@ def _raw_apply(impl, X: np.ndarray) -> np.ndarray:
         return impl @ X
     if sp.issparse(impl):
         return np.asarray(impl @ X)
+    # The user's code works on its own copy and hands back an array of its own: an
+    # operator that writes into its input (``cho_solve(..., overwrite_b=True)``) or reuses
+    # its output buffer must not overwrite a vector the framework keeps (a solver's
+    # answer, the iterate it verifies, the product it remembers).
+    X = X.copy()
     if X.ndim == 1:
-        return np.asarray(impl.matvec(X)).reshape(-1)
-    return np.asarray(impl.matmat(X))
+        return np.array(impl.matvec(X)).reshape(-1)
+    return np.array(impl.matmat(X))
 
 
 def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:

@@ -144,6 +144,8 @@ _PROBLEMS: dict[str, ProblemInfo] = {}
 _SCENES: dict[str, SceneInfo] = {}
 _SETS: dict[str, SetInfo] = {}
 _LOADED = {"lcpbench.solvers": False, "lcpbench.problems": False, "lcpbench.scenes": False}
+#: True once the modules named in ``LCPBENCH_PLUGINS`` were imported (with the first group).
+_ENV_LOADED = False
 
 
 def _check_name(name: str) -> None:
@@ -267,7 +269,9 @@ def _load(group: str) -> None:
     if _LOADED[group]:
         return
     _LOADED[group] = True
-    if group == "lcpbench.solvers":
+    global _ENV_LOADED
+    if not _ENV_LOADED:        # once, whichever group is asked for first: a plugin file may
+        _ENV_LOADED = True     # register solvers, problems and scenes alike
         _load_env_plugins()
     eps = entry_points(group=group)
     if not eps:

@@ -21,8 +21,11 @@ __all__ = ["split_top_level", "parse_spec", "make_params", "describe_params", "B
            "CheckedParams", "check_bounds"]
 
 
-def split_top_level(text: str, sep: str = ",") -> list[str]:
-    """Split on ``sep`` outside brackets: ``"a=1,b=[x,y]"`` -> ``["a=1", "b=[x,y]"]``."""
+def split_top_level(text: str, sep: str = ",", *, keep_empty: bool = False) -> list[str]:
+    """Split on ``sep`` outside brackets: ``"a=1,b=[x,y]"`` -> ``["a=1", "b=[x,y]"]``.
+
+    Empty pieces are dropped unless ``keep_empty``.
+    """
     out: list[str] = []
     cur: list[str] = []
     depth = 0
@@ -41,6 +44,8 @@ def split_top_level(text: str, sep: str = ",") -> list[str]:
     if depth != 0:
         raise ValueError(f"unbalanced bracket in {text!r}")
     out.append("".join(cur))
+    if keep_empty:
+        return [s.strip() for s in out] if text.strip() else []
     return [s.strip() for s in out if s.strip()]
 
 
@@ -52,6 +57,12 @@ def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"empty solver/problem spec {spec!r}; use NAME[:key=value,...]")
     name, _, rest = spec.strip().partition(":")
+    if "," in name:
+        raise ValueError(f"spec {spec!r}: a comma in the name {name.strip()!r}; give one spec "
+                         "per option (repeat --solver/--problem), parameters after ':'")
+    if len(split_top_level(rest)) != len(split_top_level(rest, keep_empty=True)):
+        raise ValueError(f"spec {spec!r}: an empty parameter (a stray comma); remove it, "
+                         "e.g. NAME:key=value,key2=value2")
     raw: dict[str, str] = {}
     for item in split_top_level(rest):
         key, eq, val = item.partition("=")

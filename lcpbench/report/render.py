@@ -140,6 +140,10 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     say = progress or (lambda text: None)
     say("reading the run store")
     store = RunStore(folder)
+    for file, line, reason in store.corrupt:   # never set aside without a word
+        print(f"lcpbench report: {file}, line {line}: {reason}; the line was moved to "
+              f"{Path(file).name}.corrupt and its run is not in the report (rerun the same "
+              "lcpbench run command to redo it)", file=sys.stderr)
     res = store.results()
     tdir = folder / "tables"
     fig_no = [0]

@@ -468,6 +468,10 @@ class RunStore:
         res = scan.frame() if scan else None
         if res is None:
             return pd.DataFrame(columns=RESULT_COLUMNS)
+        if "run_id" not in res.columns:
+            raise ValueError(f"{self.results_path} is not a results.csv of lcpbench (no run_id "
+                             f"column; it has {', '.join(map(str, res.columns[:5]))}); give the "
+                             "DIR that lcpbench run or simulate wrote")
         return res.drop_duplicates("run_id", keep="last").reset_index(drop=True)
 
     def _history_frame(self) -> Optional[pd.DataFrame]:

@@ -140,6 +140,9 @@ def _axes(spec: str, kind: str, seed: Optional[int] = None, *, cached: bool = Fa
             else:
                 axes.append([(key, value)])                  # [a,b]: one list value
         else:
+            if not items:
+                raise ValueError(f"{spec!r}: {key}=[] sweeps over no value, so the spec would "
+                                 f"make no run; give the values to sweep, e.g. {key}=[a,b]")
             axes.append([(key, i) for i in items])
     return name, info, axes
 
@@ -232,6 +235,12 @@ class Sweep:
             raise ValueError(f"repeat must be >= 1, got {self.repeat}")
         if self.timeout is not None and not self.timeout > 0:
             raise ValueError(f"timeout must be > 0 seconds, got {self.timeout}")
+        if self.timeout is not None and not self.timeout <= MAX_TIMEOUT_S:
+            raise ValueError(f"timeout {self.timeout:g} s is over the longest per-run limit of "
+                             f"{MAX_TIMEOUT_S:g} s (30 days); leave --timeout out for no limit")
+        if not (isinstance(self.max_emvps, (int, float)) and math.isfinite(self.max_emvps)):
+            raise ValueError(f"budget max_emvps must be a finite number, got {self.max_emvps}; "
+                             "give a large budget instead (e.g. 1e9)")
 
     def solver_specs(self) -> list[Spec]:
         return _unique(s for spec in self.solvers for s in expand(spec, "solver"))
@@ -256,6 +265,10 @@ def _unique(specs) -> list[Spec]:
     return out
 
 
+#: The longest per-run time limit a sweep accepts (30 days): beyond it the platform's
+#: timers and timestamps overflow; no limit at all is no ``timeout``.
+MAX_TIMEOUT_S = 30 * 86400.0
+
 _CONFIG_KEYS = {"solvers", "problems", "tol", "stop", "repeat", "seed", "timeout", "max_emvps"}
 
 
@@ -273,6 +286,9 @@ def load_config(path: str) -> dict:
         raise FileNotFoundError(f"sweep config {path!r} not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"sweep config {path!r} is not valid TOML: {exc}") from None
+    if not data:
+        raise ValueError(f"sweep config {path!r} is empty; give at least solvers = [...] and "
+                         "problems = [...] (see sweeps/ for examples)")
     unknown = set(data) - _CONFIG_KEYS
     if unknown:
         raise ValueError(f"sweep config {path!r}: unknown key(s) {', '.join(sorted(unknown))}; "

@@ -62,6 +62,10 @@ def _open(path: PathLike) -> h5py.File:
     try:
         return h5py.File(p, "r")
     except OSError as exc:
+        if not h5py.is_hdf5(p):     # no HDF5 signature at all: another kind of file
+            raise StoredSetError(f"{p}: not an HDF5 file (a {p.suffix or 'suffix-less'} file); "
+                                 "a stored set is the .h5 file lcpbench generate writes",
+                                 path=p) from None
         raise _err(p, f"cannot open the HDF5 file, it is truncated or corrupted ({exc})") \
             from None
 

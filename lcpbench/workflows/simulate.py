@@ -187,6 +187,10 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
                       max_seconds=max_seconds, overlap_tol=float(overlap_tol),
                       regime=chosen.regime)
     run.budget()                                   # a bad budget is refused before any write
+    if not np.isfinite(float(max_emvps)):          # meta.json is JSON: no Infinity
+        raise ValueError(f"budget max_emvps must be a finite number, got {max_emvps}; give a "
+                         "large budget instead (e.g. 1e9)")
+    _check_not_offline(Path(out_dir))
     probe = make_scene(run.scene_spec)             # validates the scene before any work
     infos = {s: _check_solver(s, [str(x) for x in probe.params.low], run.scene_spec)
              for s in specs}
@@ -218,6 +222,24 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
         meta["load_average_finished"] = _load_average()
         store.write_meta(meta)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _check_not_offline(folder: Path) -> None:
+    """Refuse a run store that ``lcpbench run`` wrote: online rows are not added to it.
+
+    Raises
+    ------
+    ValueError
+        Naming the folder and what to do.
+    """
+    path = folder / "meta.json"
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+    except (OSError, ValueError):   # an unreadable meta.json is the store's own error, later
+        return
+    if isinstance(meta, dict) and meta.get("command") != "simulate":
+        raise ValueError(f"--out {folder} holds an offline run store (written by lcpbench "
+                         "run); give lcpbench simulate its own --out")
 
 
 @dataclasses.dataclass(frozen=True)
