@@ -65,10 +65,26 @@ DIED_PREFIX = "worker process died"
 HISTORY_STORE_COLUMNS = ["run_id"] + HISTORY_COLUMNS
 
 
+def refuse_link(path: Path) -> None:
+    """Raise OSError when ``path`` or its folder is a symbolic link.
+
+    A run store writes only inside its own folder: a link planted in it (``.lock``,
+    ``tables/``, ``results.csv``) is refused rather than followed to a file elsewhere.
+    """
+    for p in (Path(path), Path(path).parent):
+        if p.is_symlink():
+            raise OSError(f"{p} is a symbolic link; lcpbench writes a run store's files only "
+                          "inside its folder and never follows links: remove the link")
+
+
 def atomic_write(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    """Write ``text`` to ``path`` through a temporary file and a rename (no link followed)."""
+    refuse_link(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w", encoding="utf-8") as fh:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(tmp)              # a leftover (or a planted link): never written through
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    with open(fd, "w", encoding="utf-8") as fh:
         fh.write(text)
         fh.flush()
         os.fsync(fh.fileno())
@@ -109,7 +125,8 @@ class RunLock:
         self.fd: Optional[int] = None
 
     def __enter__(self) -> RunLock:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        refuse_link(self.path)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
         deadline = time.monotonic() + self.REPAIR_WAIT_S
         while True:
             try:
@@ -454,7 +471,9 @@ class RunStore:
             csv.writer(line, lineterminator="").writerow([_one_line(v) for v in r])
             text = line.getvalue()
             buf.write(f"{text},{_crc(text)}\n" if checksum else text + "\n")
-        with open(path, "a", encoding="utf-8", newline="") as fh:
+        refuse_link(path)
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        with open(fd, "a", encoding="utf-8", newline="") as fh:
             fh.write(buf.getvalue())
             fh.flush()
             os.fsync(fh.fileno())
