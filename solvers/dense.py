@@ -43,6 +43,8 @@ from lcpbench.core.result import SolveResult, Status
 from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.blas import on_one_blas_thread
 
+from .dense_kernels import PIVOT_LIMIT, RAY, REFACTOR_DUE, ZERO_PIVOT, lemke_run, pgs_sweep
+
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
 
 
@@ -104,12 +106,10 @@ def pgs(ctx: SolverContext, p: PGSParams) -> SolveResult:
     rows = np.flatnonzero(live)
     inv = np.zeros(n)
     inv[live] = p.omega / diag[live]
+    M = np.ascontiguousarray(M, dtype=np.float64)
     while True:
         x[dead_zero] = 0.0
-        for i in rows:
-            r = float(M[i] @ x) + b[i]
-            xi = x[i] - inv[i] * r
-            x[i] = xi if xi > 0.0 else 0.0
+        pgs_sweep(M, b, x, rows, inv)
         ctx.info["sweeps"] += 1
         w = ctx.A @ x + b
         if ctx.report(x, w):
@@ -132,38 +132,17 @@ class LemkeParams(CheckedParams):
         directions that are exactly zero, and pivoting on it derails the path).
     refactor_every : int
         Recompute the basis inverse from the basis columns every this many
-        pivots (default 20), bounding the drift of the product-form updates.
+        pivots, bounding the drift of the product-form updates (0: automatic,
+        ``max(20, n)``: a recomputation costs about ``2 n^3``, so every ``n``
+        pivots it costs what the pivots themselves cost, ``O(n^2)`` each; every 20
+        pivots it made lcpbench's Lemke several times slower than the pivots alone
+        at n = 200). The final solution is recomputed from the final basis by a
+        direct solve in any case.
     """
 
     max_pivots: Annotated[int, Bounds(ge=0)] = 0
     pivot_tol: Annotated[float, Bounds(gt=0, lt=1)] = 1e-9
-    refactor_every: Annotated[int, Bounds(ge=1)] = 20
-
-
-def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.ndarray,
-                   tol: float):
-    """Row index of the lexicographic minimum ratio test, or None (ray).
-
-    ``d_i = (B^-1 col)_i`` counts as positive only above ``tol max_k (|B^-1| |col|)_k``,
-    the scale of the product's rounding: scale-free in A (an A of order 1e-12
-    mixes entries of order 1 and 1e-12 in one column; a threshold relative to
-    ``max |d|`` would drop the small legitimate ones), while exact zeros that
-    rounding turned into 1e-16 (singular A) stay below it.
-    """
-    cand = np.flatnonzero(d > tol * float(np.max(np.abs(Binv) @ np.abs(col))))
-    if cand.size == 0:
-        return None
-    ratios = rhs[cand] / d[cand]
-    best = float(np.min(ratios))
-    near = cand[ratios <= best + 1e-12 * max(1.0, abs(best))]
-    j = 0
-    # Lexicographic tie-break on the rows of B^-1 divided by the pivot entries.
-    while near.size > 1 and j < Binv.shape[1]:
-        vals = Binv[near, j] / d[near]
-        m = float(np.min(vals))
-        near = near[vals <= m + 1e-12 * max(1.0, abs(m))]
-        j += 1
-    return int(near[0])
+    refactor_every: Annotated[int, Bounds(ge=0)] = 0
 
 
 def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: int) -> None:
@@ -194,8 +173,9 @@ class _Tableau:
     """
 
     def __init__(self, M: np.ndarray, q: np.ndarray) -> None:
-        self.M, self.q, self.n = M, q, q.shape[0]
-        self.basis = np.arange(self.n)
+        self.M = np.ascontiguousarray(M, dtype=np.float64)
+        self.q, self.n = q, q.shape[0]
+        self.basis = np.arange(self.n, dtype=np.int64)
         self.Binv = np.eye(self.n)
         self.rhs = q.astype(np.float64).copy()
 
@@ -253,38 +233,35 @@ class _Tableau:
 
 
 def _lemke_pivots(ctx: SolverContext, p: LemkeParams, tab: _Tableau):
-    """Scheme I's pivots until ``z0`` leaves; ``(status or None, message, pivots)``."""
+    """Scheme I's pivots until ``z0`` leaves; ``(status or None, message, pivots)``.
+
+    The pivots run compiled (:func:`lcpbench.solvers.dense_kernels.lemke_run`), handing back
+    every ``refactor_every`` pivots for the basis inverse to be recomputed here.
+    """
     n = tab.n
     max_piv = p.max_pivots or max(100, 50 * n)
     # z0 enters; the most negative q_i leaves (lexicographic ties resolved by index).
-    r = int(np.argmin(tab.q))
-    entering = 2 * n
-    pivots = 0
+    first_row = int(np.argmin(tab.q))
+    entering, pivots = 2 * n, 0
+    d = np.zeros(n)
+    refactor_every = p.refactor_every or max(20, n)
     while True:
-        col = tab.column(entering)
-        d = tab.Binv @ col
-        if pivots == 0:
-            row = r                          # first pivot: makes rhs >= 0
-        else:
-            row = _lex_min_ratio(tab.rhs, tab.Binv, d, col, p.pivot_tol)
-            if row is None:
-                _offer_ray(ctx, tab.basis, d, entering)    # the framework confirms the claim
-                return Status.infeasible, (
-                    f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
-                    "the LCP is infeasible)"), pivots
-        if d[row] == 0.0:
-            return Status.failed, "Lemke: zero pivot", pivots
-        leaving = tab.pivot(row, entering, d)
-        pivots += 1
-        if pivots == 1:
-            tab.rhs = np.maximum(tab.rhs, 0.0)
-        if leaving == 2 * n:
-            return None, "", pivots             # z0 left: complementary basis found
-        if pivots >= max_piv:
-            return Status.max_iter, f"Lemke: pivot limit {max_piv} reached", pivots
-        entering = leaving + n if leaving < n else leaving - n
-        if pivots % p.refactor_every == 0:
+        code, entering, pivots = lemke_run(tab.M, tab.basis, tab.Binv, tab.rhs, d, entering,
+                                           pivots, first_row, max_piv, refactor_every,
+                                           p.pivot_tol)
+        if code == REFACTOR_DUE:
             tab.refactor(ctx)
+            continue
+        if code == RAY:
+            _offer_ray(ctx, tab.basis, d, entering)    # the framework confirms the claim
+            return Status.infeasible, (
+                f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
+                "the LCP is infeasible)"), pivots
+        if code == ZERO_PIVOT:
+            return Status.failed, "Lemke: zero pivot", pivots
+        if code == PIVOT_LIMIT:
+            return Status.max_iter, f"Lemke: pivot limit {max_piv} reached", pivots
+        return None, "", pivots             # z0 left: complementary basis found
 
 
 @register_solver("lemke", LemkeParams, needs_dense=True)

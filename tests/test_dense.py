@@ -88,3 +88,54 @@ def test_lemke_pivot_limit():
     A, b = planted(30, seed=0)
     res = lcpbench.solve(A, b, solver="lemke:max_pivots=2")
     assert res.status is Status.max_iter and res.info["pivots"] == 2
+
+
+def _python_lemke_path(A, b):
+    """Lemke's scheme I in plain numpy (no lexicographic rule, no refactoring), for
+    comparing the compiled pivots' path on instances without ties."""
+    n = len(b)
+    s = float(np.max(np.abs(A)))
+    T = np.hstack([np.eye(n), -A / s, -np.ones((n, 1))])
+    rhs, basis = b / s, list(range(n))
+    entering, row, pivots = 2 * n, int(np.argmin(b)), 0
+    while True:
+        col = T[:, entering].copy()
+        if pivots:
+            ok = col > 1e-12
+            ratios = np.where(ok, rhs / np.where(ok, col, 1.0), np.inf)
+            row = int(np.argmin(ratios))
+        piv = col[row]
+        T[row] /= piv
+        rhs[row] /= piv
+        for i in range(n):
+            if i != row:
+                rhs[i] -= col[i] * rhs[row]
+                T[i] -= col[i] * T[row]
+        leaving, basis[row] = basis[row], entering
+        pivots += 1
+        if leaving == 2 * n:
+            return pivots
+        entering = leaving + n if leaving < n else leaving - n
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_lemke_compiled_pivots_follow_the_textbook_path(seed):
+    A, b = planted(40, seed=seed)
+    res = lcpbench.solve(A, b, solver="lemke", stop="kkt", tol=1e-10)
+    assert res.solved and res.info["pivots"] == _python_lemke_path(A, b)
+    # refactoring the basis inverse every 3 pivots changes rounding only, not the path
+    again = lcpbench.solve(A, b, solver="lemke:refactor_every=3", stop="kkt", tol=1e-10)
+    assert again.info["pivots"] == res.info["pivots"]
+    np.testing.assert_allclose(again.x, res.x, atol=1e-10)
+
+
+def test_pgs_compiled_sweep_is_gauss_seidel():
+    from lcpbench.solvers.dense_kernels import pgs_sweep
+
+    A, b = planted(12, seed=4)
+    x = np.linspace(0.0, 1.0, 12)
+    want = x.copy()
+    for i in range(12):                      # the sweep in Python, row by row
+        want[i] = max(0.0, want[i] - 1.3 / A[i, i] * (A[i] @ want + b[i]))
+    pgs_sweep(A, b, x, np.arange(12), 1.3 / np.diag(A))
+    np.testing.assert_allclose(x, want, rtol=1e-14, atol=1e-15)
