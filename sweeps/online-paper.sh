@@ -21,7 +21,7 @@
 # from its last finished step, and a larger STEPS extends them. The three solvers of a lattice
 # take their steps in turn (one step each, round robin), so that their wall times are measured
 # under the same machine load. `lcpbench report OUT` renders the online table and the E-MVP box
-# plots per lattice size; the measured table is in docs/benchmarks.md.
+# plots per lattice size; `lcpbench paper reports/paper` renders the results page beside the paper.
 #
 # The simulations of one process hold one operator each (the previous step's is released
 # before the next is built; peak memory per simulation: docs/benchmarks.md). SEPARATE=1 runs
@@ -67,3 +67,4 @@ for m in ${LATTICES:-3 4 5}; do
     fi
 done
 lcpbench report "${OUT}"
+if [ "$(dirname "${OUT}")" = "reports/paper" ]; then lcpbench paper reports/paper; fi

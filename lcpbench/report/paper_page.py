@@ -252,7 +252,7 @@ def _online_findings(paper: pd.DataFrame, regime: str, baseline: str,
             f"Online {r['lattice size']}, {regime} regime, {int(r['steps'])} compared steps: "
             + "; ".join(parts) + f". Collision resolution is {share:.0%} of BB-PGD's step "
             f"time here and {paper_share:.0%} in the paper, so a collision speedup moves the "
-            "total less here.")
+            f"total {'more' if share > paper_share else 'less'} here.")
 
 
 # ---------------------------------------------------------------------------- offline
@@ -353,10 +353,9 @@ def render_page(folder: Path, baseline: str = BASELINE_SOLVER) -> str:
     lines += ["## What differs", ""]
     lines += [f"- {f}" for f in findings] or ["- Nothing measured yet."]
     lines += ["", "Why the figures differ from the paper's, in general: the paper ran a "
-              "Stokes FMM far field on 24 cores, where a collision solve is most of a step; "
-              "lcpbench sums the far field directly or by a table on two cores, so the share "
-              "of a step that collision resolution takes, and with it how far a collision "
-              "speedup moves the total, differ. lcpbench stops at a verified residual, so "
+              "Stokes FMM far field on 24 cores; lcpbench sums the far field directly or by a "
+              "table on two cores, so the share of a step that collision resolution takes, and "
+              "with it how far a collision speedup moves the total, differ. lcpbench stops at a verified residual, so "
               "every solver needs more products than in the paper. Its regime (`default`) "
               "recycles Krylov directions across products, which makes later products of a "
               "solve cheaper and changes which solver is fastest. The low fidelity's error "
