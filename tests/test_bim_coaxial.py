@@ -88,7 +88,9 @@ def test_table_interpolates_the_coaxial_block():
         assert np.abs(table.values(r, columns=cols) - want).max() <= 1e-14 * np.abs(want).max()
     # a subset of distinct entries is written as asked; repeated entries are refused
     sub = cols[:7]
-    assert np.array_equal(table.values(rho, columns=sub), table.values(rho)[:, sub])
+    # (the same sums, in the BLAS's own order for each width: equal to rounding)
+    full = table.values(rho)[:, sub]
+    assert np.abs(table.values(rho, columns=sub) - full).max() <= 1e-14 * np.abs(full).max()
     with pytest.raises(ValueError, match="distinct"):
         table.values(rho, columns=np.zeros(nnz, dtype=int))
 
