@@ -16,18 +16,18 @@ def _blas_threads() -> list[int]:
 @pytest.mark.parametrize("solver", ["pgs", "lemke"])
 def test_dense_solvers_run_on_one_blas_thread(solver, monkeypatch):
     seen: list[int] = []
-    report, ratio = SolverContext.report, dense._lex_min_ratio
+    report, solution = SolverContext.report, dense._Tableau.solution
 
     def observed_report(self, x, w):
         seen.extend(_blas_threads())
         return report(self, x, w)
 
-    def observed_ratio(*args):                   # inside lemke's pivoting
+    def observed_solution(self, ctx):            # inside lemke, after the compiled pivots
         seen.extend(_blas_threads())
-        return ratio(*args)
+        return solution(self, ctx)
 
     monkeypatch.setattr(SolverContext, "report", observed_report)
-    monkeypatch.setattr(dense, "_lex_min_ratio", observed_ratio)
+    monkeypatch.setattr(dense._Tableau, "solution", observed_solution)
     rng = np.random.default_rng(3)
     G = rng.standard_normal((40, 40))
     A = G @ G.T / 40 + np.eye(40)

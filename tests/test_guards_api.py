@@ -5,7 +5,6 @@ import pytest
 import scipy.sparse as sp
 
 import lcpbench
-from lcpbench import LCP
 from lcpbench.core import guards
 
 A2 = np.array([[2.0, 1.0], [1.0, 2.0]])
@@ -55,10 +54,12 @@ def test_matrix_free_dense_copy_counts_the_identity_too(monkeypatch):
 
 
 def test_memoryerror_while_forming_the_dense_matrix_is_a_failed_result(monkeypatch):
-    def no_memory(self):
+    import lcpbench.core.api as api
+
+    def no_memory(op):
         raise MemoryError("Unable to allocate")
 
-    monkeypatch.setattr(LCP, "dense", no_memory)
+    monkeypatch.setattr(api, "dense_uncounted", no_memory)     # where the copy is formed
     res = lcpbench.solve(A2, B2, solver="lemke")
     assert res.status == lcpbench.Status.failed
     assert "ran out of memory" in res.message and "MVP-only" in res.message

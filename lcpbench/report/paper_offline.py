@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from lcpbench.core.defaults import BASELINE_SOLVER
+from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_OFFLINE_TABLE
 from lcpbench.report.ranking import truthy
 
 __all__ = ["PAPER_OFFLINE", "PaperRow", "paper_row_of", "beside_paper"]
@@ -33,21 +33,10 @@ class PaperRow:
 
 
 PAPER_OFFLINE: dict[str, PaperRow] = {
-    "bb-pgd": PaperRow("BB-PGD", (11, 11, 11, 12)),
-    "a-pgd:constants=oracle": PaperRow("A-PGD", (12, 15, 15, 16)),
-    "zero-sr1": PaperRow("zeroSR1", (9, 13, 13, 15)),
-    "l-bfgs-b": PaperRow("L-BFGS-B", (10, 11, 11, 12)),
-    "minmap-newton": PaperRow("Min-Map Newton", (15, 28, 27, 47)),
-    "mono-pqn": PaperRow("Mono-PQN", (7, 8, 7.8, 8)),
-    "bi-pqn:low=p3e6": PaperRow("Bi-PQN, low p = 3, eps 1e-6", (4.7, 5.4, 5.5, 7.1),
-                                (4, 4, 4.4, 5)),
-    "bi-pqn:low=p4e6": PaperRow("Bi-PQN, low p = 4, eps 1e-6", (3.8, 4.6, 4.6, 5.5),
-                                (3, 3, 3, 4)),
-    "bi-pqn:low=p6e6": PaperRow("Bi-PQN, low p = 6, eps 1e-6", (3.8, 5.1, 5.4, 8.4),
-                                (2, 2, 2.1, 3)),
-}
-"""The paper's offline table by the lcpbench solver spec that runs the same method (A-PGD
-with the constants L and mu known, as the paper grants them)."""
+    spec: PaperRow(label, emvps, high)
+    for spec, (label, emvps, high) in PAPER_OFFLINE_TABLE.items()}
+"""The paper's offline table by the lcpbench solver spec that runs the same method
+(:data:`lcpbench.core.defaults.PAPER_OFFLINE_TABLE`)."""
 
 COLUMNS = ["solver", "paper method", "solved", "median E-MVPs", "median high MVPs",
            "paper median E-MVPs", "paper median high MVPs", f"/ {BASELINE_SOLVER}",

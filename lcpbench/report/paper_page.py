@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_ONLINE_FAMILIES
+from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_OFFLINE_HEADLINE, PAPER_ONLINE_FAMILIES
 from lcpbench.report import paper_offline, paper_online, tables
 from lcpbench.report.markup import markdown_table as md_table
 from lcpbench.run.store import RunStore
@@ -143,7 +143,7 @@ def _online_rows(paper: pd.DataFrame, regime: str, baseline: str) -> list[dict]:
         if not measured and not (both["lattice size"] == r["lattice size"]).sum() > 1:
             continue                            # a paper size with no measured row
         out.append({
-            "lattice": r["lattice size"],
+            "size": r["lattice size"],
             "source": f"lcpbench, {regime} regime" if measured else "paper",
             "steps": _fmt(r["steps"]),
             "BB-PGD total s": _seconds(r["BB-PGD total s"]),
@@ -160,7 +160,7 @@ def _median_rows(paper: pd.DataFrame, steps: pd.DataFrame) -> list[dict]:
     for _, r in paper.iterrows():
         for s in paper.attrs.get("solvers", []):
             g = steps[(steps["problem"] == r["scene"]) & (steps["solver"] == s)]
-            out.append({"lattice": r["lattice size"], "solver": f"`{s}`",
+            out.append({"size": r["lattice size"], "solver": f"`{s}`",
                         "compared steps": str(len(g)),
                         "solved": f"{int(tables.solved_mask(g).sum())}/{len(g)}",
                         "median E-MVPs": _fmt(r.get(f"{s} median E-MVPs")),
@@ -287,7 +287,8 @@ def _offline_section(name: str, res: pd.DataFrame, baseline: str,
 
 
 def _with_high(e, h, solver: str) -> str:
-    if solver.startswith("bi-pqn") and h is not None and np.isfinite(h):
+    row = paper_offline.paper_row_of(solver)
+    if row is not None and row.high is not None and h is not None and np.isfinite(h):
         return f"{_fmt(e)} ({_fmt(h)})"
     return _fmt(e)
 
@@ -296,7 +297,7 @@ def _offline_findings(problem: str, t: pd.DataFrame, findings: list[str]) -> Non
     col, pcol = f"/ {BASELINE_SOLVER}", f"paper / {BASELINE_SOLVER}"
     bits = []
     for _, r in t.iterrows():
-        if r["solver"] in ("mono-pqn", "bi-pqn:low=p4e6") and np.isfinite(r[col]):
+        if r["solver"] in PAPER_OFFLINE_HEADLINE and np.isfinite(r[col]):
             bits.append(f"{r['paper method']} {r[col]:.2f} of BB-PGD's E-MVPs against the "
                         f"paper's {r[pcol]:.2f}")
     base = t[t["solver"] == BASELINE_SOLVER]
