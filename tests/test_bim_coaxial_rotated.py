@@ -155,7 +155,8 @@ def test_pairs_beyond_the_budget_are_the_same_table_blocks_rotated_on_the_fly():
     assert 0 < small.n_stored_blocks < small.n_block_pairs == full.n_block_pairs
     assert small.fly_idx.size == 0 and small.flyn_idx.size == 0
     assert small.fly_pairs.rho.size == small.n_block_pairs - small.n_stored_blocks
-    assert np.array_equal(small.blocks[:, :9, :9], full.blocks[:, :9, :9])
+    want = full.blocks[:, :9, :9]          # equal to rounding: the BLAS sums each width
+    assert np.abs(small.blocks[:, :9, :9] - want).max() <= 1e-14 * np.abs(want).max()
     rng = np.random.default_rng(2)
     coef = rng.standard_normal((full.M, full.blocks.shape[1]))
     ob = rng.standard_normal((full.M, 3 * full.N))
