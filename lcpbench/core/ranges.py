@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 
-__all__ = ["parse_ranges"]
+__all__ = ["parse_ranges", "format_ranges"]
 
 _PART = re.compile(r"(\d+)(?:\s*-\s*(\d+))?")
 
@@ -44,3 +45,20 @@ def parse_ranges(spec: str, what: str, example: str = "0-9 or 0,3,5-7") -> list[
             raise ValueError(f"{what}: range {part!r} is reversed; write it as {hi}-{lo}")
         out.extend(i for i in range(lo, hi + 1) if i not in out)
     return out
+
+
+def format_ranges(indices: Iterable[int], sep: str = ",") -> str:
+    """The inverse of :func:`parse_ranges`: ``[0, 1, 2, 5]`` -> ``"0-2,5"`` (sorted,
+    consecutive runs as ranges, parts joined by ``sep``)."""
+    parts: list[str] = []
+    run: list[int] = []
+    for k in sorted(indices):
+        if run and k == run[-1] + 1:
+            run.append(k)
+            continue
+        if run:
+            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [k]
+    if run:
+        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return sep.join(parts)

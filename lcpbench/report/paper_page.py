@@ -25,13 +25,13 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_OFFLINE_HEADLINE, PAPER_ONLINE_FAMILIES
+from lcpbench.core.ranges import format_ranges
 from lcpbench.report import paper_offline, paper_online, tables
 from lcpbench.report.markup import markdown_table as md_table
 from lcpbench.run.store import RunStore
@@ -176,24 +176,8 @@ def _left_out_rows(res: pd.DataFrame) -> list[dict]:
                                if len(apart) else []):
         steps = sorted({int(k) for s in g["steps"] for k in str(s).split(",")})
         out.append({"scene": f"`{scene}`", "reason": reason,
-                    "steps": _ranges(steps), "count": str(len(steps))})
+                    "steps": format_ranges(steps, ", "), "count": str(len(steps))})
     return out
-
-
-def _ranges(steps: Iterable[int]) -> str:
-    """``0-6, 9`` for the steps 0, 1, ..., 6, 9."""
-    out: list[str] = []
-    run: list[int] = []
-    for k in sorted(steps):
-        if run and k == run[-1] + 1:
-            run.append(k)
-            continue
-        if run:
-            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-        run = [k]
-    if run:
-        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-    return ", ".join(out)
 
 
 def _online_section(name: str, res: pd.DataFrame, regime: str, baseline: str,

@@ -69,7 +69,7 @@ from lcpbench.core.defaults import DEFAULT_SOLVER
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import Operator, apply_uncounted, dense_uncounted
 from lcpbench.core.probes import measure_cost
-from lcpbench.core.ranges import parse_ranges
+from lcpbench.core.ranges import format_ranges, parse_ranges
 from lcpbench.core.reference import reference as consensus
 from lcpbench.core.registry import get_solver, make_scene
 from lcpbench.core.scene import step_scene
@@ -377,7 +377,7 @@ def generate(scene_spec: str, steps: Union[str, Iterable[int]], out: Union[str, 
             f.attrs.update({"name": name, "scene": scene_spec, "solver": solver,
                             "versions": json.dumps(_versions(), sort_keys=True),
                             "stop": stop, "tol": float(tol), **config})
-        steps_text = _steps_text(sorted(set(wanted) | _stored_steps(w.ids())))
+        steps_text = format_ranges(sorted(set(wanted) | _stored_steps(w.ids())))
         old = f.attrs.get("steps")
         if (old.decode() if isinstance(old, bytes) else old) != steps_text:
             f.attrs["steps"] = steps_text        # unchanged, the set needs no rewrite
@@ -400,9 +400,9 @@ def _texts(scene_spec: str, M: int, *, solver: str, lows: Sequence[str], wanted:
     """The set's ``generator``, ``title`` and ``description`` (given ones kept)."""
     generator = portable_command(argv) if argv else (
         f"lcpbench generate --scene {shlex.quote(scene_spec)} --solver {shlex.quote(solver)} "
-        f"--steps {_steps_text(wanted)} " + "".join(f"--low {x} " for x in lows)
+        f"--steps {format_ranges(wanted)} " + "".join(f"--low {x} " for x in lows)
         + f"--name {shlex.quote(name)} --out {shlex.quote(out.name)}")
-    title = title or f"{name}: dense LCPs of {scene_spec}, steps {_steps_text(wanted)}"
+    title = title or f"{name}: dense LCPs of {scene_spec}, steps {format_ranges(wanted)}"
     description = description or (
         f"Scene {scene_spec} ({M} particles) simulated with "
         f"{solver} (stop {stop}, tol {tol:g}); for each stored step the dense high-fidelity "
@@ -502,22 +502,6 @@ def _stored_steps(ids: Iterable[str]) -> set:
         if m:
             out.add(int(m.group(1)))
     return out
-
-
-def _steps_text(steps: Sequence[int]) -> str:
-    """``[0, 1, 2, 5]`` -> ``"0-2,5"``."""
-    parts: list[str] = []
-    run: list[int] = []
-    for s in sorted(steps):
-        if run and s == run[-1] + 1:
-            run.append(s)
-            continue
-        if run:
-            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-        run = [s]
-    if run:
-        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
-    return ",".join(parts)
 
 
 def _write_step(w: SetWriter, scene, problem, k: int, job: _Job) -> None:
