@@ -42,7 +42,7 @@ from numba import get_num_threads, njit, prange
 from .coaxial import CoaxialTable, order_mask
 from .jit import parallel_and_serial
 from .panel_kernels import LANES as _PANEL_LANES
-from .panel_kernels import WIDTH, rows_lanes, rows_scalar, turns, vectorising
+from .panel_kernels import WIDTH, gather_turned, rows_lanes, rows_scalar, rows_turned, vectorising
 from .rotation import degree_slices, wigner_quarter
 
 __all__ = ["LANES", "ZERO_TOL", "PairFrame", "coaxial_support"]
@@ -69,15 +69,6 @@ def coaxial_support(table: CoaxialTable) -> np.ndarray:
 # ---- the compiled kernel ---------------------------------------------------------------------
 
 @njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _gather(rows, k, X):
-    """``X[r, j] = rows[k[j], r]``: the panel's columns from rows of ``rows``."""
-    for r in range(X.shape[0]):
-        xr = X[r]
-        for j in range(WIDTH):
-            xr[j] = rows[k[j], r]
-
-
-@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
 def _scatter(Y, k, out):
     """``out[k[j], r] += Y[r, j]``: the panel's columns added to rows of ``out`` (column
     by column: each output row is read and written once per column, in order)."""
@@ -88,93 +79,48 @@ def _scatter(Y, k, out):
 
 
 @njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _left(dev, lptr, lcol, lval, Y, T):
-    """Rows ``dev`` of the panel ``Y`` replaced by the output map's rows (nonzeros ``lcol``,
-    ``lval``, row i's at ``lptr[i]:lptr[i+1]``) applied to ``Y``."""
-    for i in range(dev.size):
-        for j in range(WIDTH):
-            T[i, j] = 0.0
-        for e in range(lptr[i], lptr[i + 1]):
-            v = lval[e]
-            yc = Y[lcol[e]]
-            for j in range(WIDTH):
-                T[i, j] += v * yc[j]
-    for i in range(dev.size):
-        for j in range(WIDTH):
-            Y[dev[i], j] = T[i, j]
-
-
-@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _left_t(dev, lptr, lcol, lval, X, T):
-    """``X = L^T X`` for the output map ``L`` (identity but rows ``dev``, see :func:`_left`)."""
-    for i in range(dev.size):
-        for j in range(WIDTH):
-            T[i, j] = X[dev[i], j]
-    for i in range(dev.size):
-        for j in range(WIDTH):
-            X[dev[i], j] = 0.0
-    for i in range(dev.size):
-        for e in range(lptr[i], lptr[i + 1]):
-            v = lval[e]
-            xc = X[lcol[e]]
-            for j in range(WIDTH):
-                xc[j] += v * T[i, j]
-
-
-@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def _panel(vals, cs, rows, kin, out, kout, adjoint, q, z, e, lmap, X, Y, T):
-    """One panel: ``L D E D^T`` (``adjoint`` false) or ``D E^T D^T L^T`` (true) of the
-    columns gathered from ``rows[kin]``, added to ``out[kout]``.  ``q`` holds the quarter
-    turn ``P`` and ``P^T`` as row lists over every coefficient, ``z`` the (cos, sin) row
-    pairs of the turns about z, ``e`` the coaxial entries by row (``E``) and by column
-    (``E^T``), ``lmap`` the output map's rows that differ from the identity."""
+def _panel(vals, cs, rows, kin, out, kout, adjoint, q, z, e, X, Y):
+    """One panel: ``D E D^T`` (``adjoint`` false) or ``D E^T D^T`` (true) of the columns
+    gathered from ``rows[kin]``, added to ``out[kout]``.  ``q`` holds the quarter turn
+    ``P`` and ``P^T`` as row lists over every coefficient, ``z`` the (cos, sin) row pairs of
+    the turns about z and the rows of order 0, ``e`` the coaxial entries by row (``E``)
+    and by column (``E^T``).  Each turn about z is applied as the rows it turns are
+    written (:mod:`.panel_kernels`)."""
     qrp, qci, qcv, trp, tci, tcv = q
-    zi, zj, zm = z
+    zi, zj, zm, ones = z
     frp, fci, fwi, arp, aci, awi = e
-    dev, lptr, lcol, lval = lmap
     m1 = cs.shape[1]
     cphi, sphi = cs[0].reshape((m1, WIDTH)), cs[1].reshape((m1, WIDTH))
     cth, sth = cs[2].reshape((m1, WIDTH)), cs[3].reshape((m1, WIDTH))
-    _gather(rows, kin, X)
-    if adjoint:
-        _left_t(dev, lptr, lcol, lval, X, T)
     # into the pair frame: D^T = P Rz(-theta) P^T Rz(-phi)
-    turns(zi, zj, zm, cphi, sphi, -1.0, X)
-    rows_scalar(trp, tci, tcv, X, Y)
-    turns(zi, zj, zm, cth, sth, -1.0, Y)
+    gather_turned(rows, kin, zi, zj, zm, ones, cphi, sphi, -1.0, X)
+    rows_turned(trp, tci, tcv, zi, zj, zm, ones, cth, sth, -1.0, X, Y)
     rows_scalar(qrp, qci, qcv, Y, X)
     if adjoint:                                          # the coaxial block
         rows_lanes(arp, aci, awi, vals, X, Y)
     else:
         rows_lanes(frp, fci, fwi, vals, X, Y)
     # back to the lab frame: D = Rz(phi) P Rz(theta) P^T
-    rows_scalar(trp, tci, tcv, Y, X)
-    turns(zi, zj, zm, cth, sth, 1.0, X)
-    rows_scalar(qrp, qci, qcv, X, Y)
-    turns(zi, zj, zm, cphi, sphi, 1.0, Y)
-    if not adjoint:
-        _left(dev, lptr, lcol, lval, Y, T)
+    rows_turned(trp, tci, tcv, zi, zj, zm, ones, cth, sth, 1.0, Y, X)
+    rows_turned(qrp, qci, qcv, zi, zj, zm, ones, cphi, sphi, 1.0, X, Y)
     _scatter(Y, kout, out)
 
 
-def _run(vals, cs, src, tgt, coef, xadj, forward, adjoint, q, z, e, lmap, acc, bar):
+def _run(vals, cs, src, tgt, coef, xadj, forward, adjoint, q, z, e, acc, bar):
     """Every chunk, the threads each taking a contiguous share and summing into their own
     copy ``acc[t]`` / ``bar[t]``; ``src``, ``tgt`` (C, WIDTH) the panels' sphere rows
     (an empty slot: the zero row past the last sphere)."""
     T = acc.shape[0] if forward else bar.shape[0]
     C = vals.shape[0]
-    nv = acc.shape[2]
+    nv = acc.shape[2] if forward else bar.shape[2]
     for t in prange(T):
         X = np.empty((nv, WIDTH))
         Y = np.empty((nv, WIDTH))
-        W = np.empty((max(1, lmap[0].size), WIDTH))
         for c in range(t * C // T, (t + 1) * C // T):
             if forward:
-                _panel(vals[c], cs[c], coef, src[c], acc[t], tgt[c], False, q, z, e, lmap,
-                       X, Y, W)
+                _panel(vals[c], cs[c], coef, src[c], acc[t], tgt[c], False, q, z, e, X, Y)
             if adjoint:
-                _panel(vals[c], cs[c], xadj, tgt[c], bar[t], src[c], True, q, z, e, lmap,
-                       X, Y, W)
+                _panel(vals[c], cs[c], xadj, tgt[c], bar[t], src[c], True, q, z, e, X, Y)
 
 
 _run_parallel, _run_serial = parallel_and_serial(_run)
@@ -389,14 +335,11 @@ class PairFrame:
         pv = P[pa, pb]
         qrp, qci, qo = by_rows(inv[pa], inv[pb])
         trp, tci, to = by_rows(inv[pb], inv[pa])
-        left = self.L
-        lr, lc = np.nonzero(left)
-        lptr = np.searchsorted(lr, np.arange(self.dev.size + 1)).astype(u8)
         return (order,
                 (qrp, qci, pv[qo.astype(np.int64)], trp, tci, pv[to.astype(np.int64)]),
-                (inv[zi].astype(u8), inv[zj].astype(u8), np.array(zm, u8)),
-                by_rows(inv[self.er], inv[self.ec]) + by_rows(inv[self.ec], inv[self.er]),
-                (inv[self.dev].astype(u8), lptr, inv[lc].astype(u8), left[lr, lc].copy()))
+                (inv[zi].astype(u8), inv[zj].astype(u8), np.array(zm, u8),
+                 np.setdiff1d(np.arange(nv), inv[zi + zj]).astype(u8)),
+                by_rows(inv[self.er], inv[self.ec]) + by_rows(inv[self.ec], inv[self.er]))
 
     def _apply(self, coef: np.ndarray | None, xadj: np.ndarray | None, M: int,
                parallel: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -408,11 +351,17 @@ class PairFrame:
         acc = np.zeros((T, M + 1, nv) if fwd else (1, 1, nv))
         bar = np.zeros((T, M + 1, nv) if adj else (1, 1, nv))
 
-        order, q, z, e, lmap = self._structure
+        order, q, z, e = self._structure
+        dev, left = self.dev, self.L
 
-        def rows(a: np.ndarray | None) -> np.ndarray:
+        def rows(a: np.ndarray | None, transpose: bool) -> np.ndarray:
             out = np.zeros((M + 1 if a is not None else 1, nv))
             if a is not None:
+                if transpose and dev.size:               # L^T on every sphere's row
+                    a = a.copy()
+                    held = a[:, dev].copy()
+                    a[:, dev] = 0.0
+                    a += held @ left
                 out[:M] = a[:, order]
             return out
 
@@ -422,11 +371,14 @@ class PairFrame:
         if C:
             fn = _run_parallel if T > 1 else _run_serial
             with vectorising():
-                fn(self.vals, self.cs, slots(self.src), slots(self.tgt), rows(coef),
-                   rows(xadj), fwd, adj, q, z, e, lmap, acc, bar)
+                fn(self.vals, self.cs, slots(self.src), slots(self.tgt), rows(coef, False),
+                   rows(xadj, True), fwd, adj, q, z, e, acc, bar)
         back = np.empty(nv, dtype=np.int64)
         back[order] = np.arange(nv)
-        return acc[:, :M].sum(axis=0)[:, back], bar[:, :M].sum(axis=0)[:, back]
+        out = acc[:, :M].sum(axis=0)[:, back]
+        if fwd and dev.size:                             # L on every sphere's row
+            out[:, dev] = out @ left.T
+        return out, bar[:, :M].sum(axis=0)[:, back]
 
     def forward(self, coef: np.ndarray, acc: np.ndarray, parallel: bool = True) -> None:
         """``acc[i] += sum over pairs k with target i of block_k coef[src_k]``; ``coef``,

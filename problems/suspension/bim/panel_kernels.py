@@ -14,7 +14,8 @@ from contextlib import contextmanager
 
 from numba import config, njit
 
-__all__ = ["WIDTH", "rows_scalar", "rows_lanes", "turns", "vectorising"]
+__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "turns",
+           "vectorising"]
 
 WIDTH = 32
 LANES = 16
@@ -180,3 +181,219 @@ def turns(zi, zj, zm, C, S, sign, X):
         xj[26] = t26 * a26 + c26 * b26; xj[27] = t27 * a27 + c27 * b27
         xj[28] = t28 * a28 + c28 * b28; xj[29] = t29 * a29 + c29 * b29
         xj[30] = t30 * a30 + c30 * b30; xj[31] = t31 * a31 + c31 * b31
+
+
+@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
+def rows_turned(rp, ci, cv, zi, zj, zm, ones, C, S, sign, X, Y):
+    """``Y = Rz Q X``: the rows of ``Q X`` (``Q`` given as for :func:`rows_scalar`)
+    turned about z as :func:`turns` does, pair ``(zi[k], zj[k])`` by order ``zm[k]``;
+    the rows ``ones`` (order 0) as they are.  Each half of the columns in turn, so
+    that both rows of a pair are summed in registers."""
+    for k in range(zi.size):
+        a = zi[k]
+        b = zj[k]
+        c = C[zm[k]]
+        s = S[zm[k]]
+        ya = Y[a]
+        yb = Y[b]
+        p0 = 0.0; p1 = 0.0; p2 = 0.0; p3 = 0.0
+        p4 = 0.0; p5 = 0.0; p6 = 0.0; p7 = 0.0
+        p8 = 0.0; p9 = 0.0; p10 = 0.0; p11 = 0.0
+        p12 = 0.0; p13 = 0.0; p14 = 0.0; p15 = 0.0
+        q0 = 0.0; q1 = 0.0; q2 = 0.0; q3 = 0.0
+        q4 = 0.0; q5 = 0.0; q6 = 0.0; q7 = 0.0
+        q8 = 0.0; q9 = 0.0; q10 = 0.0; q11 = 0.0
+        q12 = 0.0; q13 = 0.0; q14 = 0.0; q15 = 0.0
+        for e in range(rp[a], rp[a + 1]):
+            x = X[ci[e]]
+            w = cv[e]
+            p0 += w * x[0]; p1 += w * x[1]; p2 += w * x[2]; p3 += w * x[3]
+            p4 += w * x[4]; p5 += w * x[5]; p6 += w * x[6]; p7 += w * x[7]
+            p8 += w * x[8]; p9 += w * x[9]; p10 += w * x[10]; p11 += w * x[11]
+            p12 += w * x[12]; p13 += w * x[13]; p14 += w * x[14]; p15 += w * x[15]
+        for e in range(rp[b], rp[b + 1]):
+            x = X[ci[e]]
+            w = cv[e]
+            q0 += w * x[0]; q1 += w * x[1]; q2 += w * x[2]; q3 += w * x[3]
+            q4 += w * x[4]; q5 += w * x[5]; q6 += w * x[6]; q7 += w * x[7]
+            q8 += w * x[8]; q9 += w * x[9]; q10 += w * x[10]; q11 += w * x[11]
+            q12 += w * x[12]; q13 += w * x[13]; q14 += w * x[14]; q15 += w * x[15]
+        c0 = c[0]; c1 = c[1]; c2 = c[2]; c3 = c[3]
+        c4 = c[4]; c5 = c[5]; c6 = c[6]; c7 = c[7]
+        c8 = c[8]; c9 = c[9]; c10 = c[10]; c11 = c[11]
+        c12 = c[12]; c13 = c[13]; c14 = c[14]; c15 = c[15]
+        t0 = sign * s[0]; t1 = sign * s[1]; t2 = sign * s[2]; t3 = sign * s[3]
+        t4 = sign * s[4]; t5 = sign * s[5]; t6 = sign * s[6]; t7 = sign * s[7]
+        t8 = sign * s[8]; t9 = sign * s[9]; t10 = sign * s[10]; t11 = sign * s[11]
+        t12 = sign * s[12]; t13 = sign * s[13]; t14 = sign * s[14]; t15 = sign * s[15]
+        ya[0] = c0 * p0 - t0 * q0; ya[1] = c1 * p1 - t1 * q1; ya[2] = c2 * p2 - t2 * q2; ya[3] = c3 * p3 - t3 * q3
+        ya[4] = c4 * p4 - t4 * q4; ya[5] = c5 * p5 - t5 * q5; ya[6] = c6 * p6 - t6 * q6; ya[7] = c7 * p7 - t7 * q7
+        ya[8] = c8 * p8 - t8 * q8; ya[9] = c9 * p9 - t9 * q9; ya[10] = c10 * p10 - t10 * q10; ya[11] = c11 * p11 - t11 * q11
+        ya[12] = c12 * p12 - t12 * q12; ya[13] = c13 * p13 - t13 * q13; ya[14] = c14 * p14 - t14 * q14; ya[15] = c15 * p15 - t15 * q15
+        yb[0] = t0 * p0 + c0 * q0; yb[1] = t1 * p1 + c1 * q1; yb[2] = t2 * p2 + c2 * q2; yb[3] = t3 * p3 + c3 * q3
+        yb[4] = t4 * p4 + c4 * q4; yb[5] = t5 * p5 + c5 * q5; yb[6] = t6 * p6 + c6 * q6; yb[7] = t7 * p7 + c7 * q7
+        yb[8] = t8 * p8 + c8 * q8; yb[9] = t9 * p9 + c9 * q9; yb[10] = t10 * p10 + c10 * q10; yb[11] = t11 * p11 + c11 * q11
+        yb[12] = t12 * p12 + c12 * q12; yb[13] = t13 * p13 + c13 * q13; yb[14] = t14 * p14 + c14 * q14; yb[15] = t15 * p15 + c15 * q15
+        p0 = 0.0; p1 = 0.0; p2 = 0.0; p3 = 0.0
+        p4 = 0.0; p5 = 0.0; p6 = 0.0; p7 = 0.0
+        p8 = 0.0; p9 = 0.0; p10 = 0.0; p11 = 0.0
+        p12 = 0.0; p13 = 0.0; p14 = 0.0; p15 = 0.0
+        q0 = 0.0; q1 = 0.0; q2 = 0.0; q3 = 0.0
+        q4 = 0.0; q5 = 0.0; q6 = 0.0; q7 = 0.0
+        q8 = 0.0; q9 = 0.0; q10 = 0.0; q11 = 0.0
+        q12 = 0.0; q13 = 0.0; q14 = 0.0; q15 = 0.0
+        for e in range(rp[a], rp[a + 1]):
+            x = X[ci[e]]
+            w = cv[e]
+            p0 += w * x[16]; p1 += w * x[17]; p2 += w * x[18]; p3 += w * x[19]
+            p4 += w * x[20]; p5 += w * x[21]; p6 += w * x[22]; p7 += w * x[23]
+            p8 += w * x[24]; p9 += w * x[25]; p10 += w * x[26]; p11 += w * x[27]
+            p12 += w * x[28]; p13 += w * x[29]; p14 += w * x[30]; p15 += w * x[31]
+        for e in range(rp[b], rp[b + 1]):
+            x = X[ci[e]]
+            w = cv[e]
+            q0 += w * x[16]; q1 += w * x[17]; q2 += w * x[18]; q3 += w * x[19]
+            q4 += w * x[20]; q5 += w * x[21]; q6 += w * x[22]; q7 += w * x[23]
+            q8 += w * x[24]; q9 += w * x[25]; q10 += w * x[26]; q11 += w * x[27]
+            q12 += w * x[28]; q13 += w * x[29]; q14 += w * x[30]; q15 += w * x[31]
+        c0 = c[16]; c1 = c[17]; c2 = c[18]; c3 = c[19]
+        c4 = c[20]; c5 = c[21]; c6 = c[22]; c7 = c[23]
+        c8 = c[24]; c9 = c[25]; c10 = c[26]; c11 = c[27]
+        c12 = c[28]; c13 = c[29]; c14 = c[30]; c15 = c[31]
+        t0 = sign * s[16]; t1 = sign * s[17]; t2 = sign * s[18]; t3 = sign * s[19]
+        t4 = sign * s[20]; t5 = sign * s[21]; t6 = sign * s[22]; t7 = sign * s[23]
+        t8 = sign * s[24]; t9 = sign * s[25]; t10 = sign * s[26]; t11 = sign * s[27]
+        t12 = sign * s[28]; t13 = sign * s[29]; t14 = sign * s[30]; t15 = sign * s[31]
+        ya[16] = c0 * p0 - t0 * q0; ya[17] = c1 * p1 - t1 * q1; ya[18] = c2 * p2 - t2 * q2; ya[19] = c3 * p3 - t3 * q3
+        ya[20] = c4 * p4 - t4 * q4; ya[21] = c5 * p5 - t5 * q5; ya[22] = c6 * p6 - t6 * q6; ya[23] = c7 * p7 - t7 * q7
+        ya[24] = c8 * p8 - t8 * q8; ya[25] = c9 * p9 - t9 * q9; ya[26] = c10 * p10 - t10 * q10; ya[27] = c11 * p11 - t11 * q11
+        ya[28] = c12 * p12 - t12 * q12; ya[29] = c13 * p13 - t13 * q13; ya[30] = c14 * p14 - t14 * q14; ya[31] = c15 * p15 - t15 * q15
+        yb[16] = t0 * p0 + c0 * q0; yb[17] = t1 * p1 + c1 * q1; yb[18] = t2 * p2 + c2 * q2; yb[19] = t3 * p3 + c3 * q3
+        yb[20] = t4 * p4 + c4 * q4; yb[21] = t5 * p5 + c5 * q5; yb[22] = t6 * p6 + c6 * q6; yb[23] = t7 * p7 + c7 * q7
+        yb[24] = t8 * p8 + c8 * q8; yb[25] = t9 * p9 + c9 * q9; yb[26] = t10 * p10 + c10 * q10; yb[27] = t11 * p11 + c11 * q11
+        yb[28] = t12 * p12 + c12 * q12; yb[29] = t13 * p13 + c13 * q13; yb[30] = t14 * p14 + c14 * q14; yb[31] = t15 * p15 + c15 * q15
+    for k in range(ones.size):
+        a = ones[k]
+        s0 = 0.0; s1 = 0.0; s2 = 0.0; s3 = 0.0
+        s4 = 0.0; s5 = 0.0; s6 = 0.0; s7 = 0.0
+        s8 = 0.0; s9 = 0.0; s10 = 0.0; s11 = 0.0
+        s12 = 0.0; s13 = 0.0; s14 = 0.0; s15 = 0.0
+        s16 = 0.0; s17 = 0.0; s18 = 0.0; s19 = 0.0
+        s20 = 0.0; s21 = 0.0; s22 = 0.0; s23 = 0.0
+        s24 = 0.0; s25 = 0.0; s26 = 0.0; s27 = 0.0
+        s28 = 0.0; s29 = 0.0; s30 = 0.0; s31 = 0.0
+        for e in range(rp[a], rp[a + 1]):
+            x = X[ci[e]]
+            w = cv[e]
+            s0 += w * x[0]; s1 += w * x[1]; s2 += w * x[2]; s3 += w * x[3]
+            s4 += w * x[4]; s5 += w * x[5]; s6 += w * x[6]; s7 += w * x[7]
+            s8 += w * x[8]; s9 += w * x[9]; s10 += w * x[10]; s11 += w * x[11]
+            s12 += w * x[12]; s13 += w * x[13]; s14 += w * x[14]; s15 += w * x[15]
+            s16 += w * x[16]; s17 += w * x[17]; s18 += w * x[18]; s19 += w * x[19]
+            s20 += w * x[20]; s21 += w * x[21]; s22 += w * x[22]; s23 += w * x[23]
+            s24 += w * x[24]; s25 += w * x[25]; s26 += w * x[26]; s27 += w * x[27]
+            s28 += w * x[28]; s29 += w * x[29]; s30 += w * x[30]; s31 += w * x[31]
+        y = Y[a]
+        y[0] = s0; y[1] = s1; y[2] = s2; y[3] = s3
+        y[4] = s4; y[5] = s5; y[6] = s6; y[7] = s7
+        y[8] = s8; y[9] = s9; y[10] = s10; y[11] = s11
+        y[12] = s12; y[13] = s13; y[14] = s14; y[15] = s15
+        y[16] = s16; y[17] = s17; y[18] = s18; y[19] = s19
+        y[20] = s20; y[21] = s21; y[22] = s22; y[23] = s23
+        y[24] = s24; y[25] = s25; y[26] = s26; y[27] = s27
+        y[28] = s28; y[29] = s29; y[30] = s30; y[31] = s31
+
+
+@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
+def gather_turned(rows, k, zi, zj, zm, ones, C, S, sign, X):
+    """``X[r, j] = rows[k[j], r]`` turned about z as :func:`rows_turned` turns."""
+    k0 = k[0]; k1 = k[1]; k2 = k[2]; k3 = k[3]
+    k4 = k[4]; k5 = k[5]; k6 = k[6]; k7 = k[7]
+    k8 = k[8]; k9 = k[9]; k10 = k[10]; k11 = k[11]
+    k12 = k[12]; k13 = k[13]; k14 = k[14]; k15 = k[15]
+    k16 = k[16]; k17 = k[17]; k18 = k[18]; k19 = k[19]
+    k20 = k[20]; k21 = k[21]; k22 = k[22]; k23 = k[23]
+    k24 = k[24]; k25 = k[25]; k26 = k[26]; k27 = k[27]
+    k28 = k[28]; k29 = k[29]; k30 = k[30]; k31 = k[31]
+    for i in range(zi.size):
+        a = zi[i]
+        b = zj[i]
+        c = C[zm[i]]
+        s = S[zm[i]]
+        xa = X[a]
+        xb = X[b]
+        p0 = rows[k0, a]; p1 = rows[k1, a]; p2 = rows[k2, a]; p3 = rows[k3, a]
+        p4 = rows[k4, a]; p5 = rows[k5, a]; p6 = rows[k6, a]; p7 = rows[k7, a]
+        p8 = rows[k8, a]; p9 = rows[k9, a]; p10 = rows[k10, a]; p11 = rows[k11, a]
+        p12 = rows[k12, a]; p13 = rows[k13, a]; p14 = rows[k14, a]; p15 = rows[k15, a]
+        p16 = rows[k16, a]; p17 = rows[k17, a]; p18 = rows[k18, a]; p19 = rows[k19, a]
+        p20 = rows[k20, a]; p21 = rows[k21, a]; p22 = rows[k22, a]; p23 = rows[k23, a]
+        p24 = rows[k24, a]; p25 = rows[k25, a]; p26 = rows[k26, a]; p27 = rows[k27, a]
+        p28 = rows[k28, a]; p29 = rows[k29, a]; p30 = rows[k30, a]; p31 = rows[k31, a]
+        q0 = rows[k0, b]; q1 = rows[k1, b]; q2 = rows[k2, b]; q3 = rows[k3, b]
+        q4 = rows[k4, b]; q5 = rows[k5, b]; q6 = rows[k6, b]; q7 = rows[k7, b]
+        q8 = rows[k8, b]; q9 = rows[k9, b]; q10 = rows[k10, b]; q11 = rows[k11, b]
+        q12 = rows[k12, b]; q13 = rows[k13, b]; q14 = rows[k14, b]; q15 = rows[k15, b]
+        q16 = rows[k16, b]; q17 = rows[k17, b]; q18 = rows[k18, b]; q19 = rows[k19, b]
+        q20 = rows[k20, b]; q21 = rows[k21, b]; q22 = rows[k22, b]; q23 = rows[k23, b]
+        q24 = rows[k24, b]; q25 = rows[k25, b]; q26 = rows[k26, b]; q27 = rows[k27, b]
+        q28 = rows[k28, b]; q29 = rows[k29, b]; q30 = rows[k30, b]; q31 = rows[k31, b]
+        c0 = c[0]; c1 = c[1]; c2 = c[2]; c3 = c[3]
+        c4 = c[4]; c5 = c[5]; c6 = c[6]; c7 = c[7]
+        c8 = c[8]; c9 = c[9]; c10 = c[10]; c11 = c[11]
+        c12 = c[12]; c13 = c[13]; c14 = c[14]; c15 = c[15]
+        c16 = c[16]; c17 = c[17]; c18 = c[18]; c19 = c[19]
+        c20 = c[20]; c21 = c[21]; c22 = c[22]; c23 = c[23]
+        c24 = c[24]; c25 = c[25]; c26 = c[26]; c27 = c[27]
+        c28 = c[28]; c29 = c[29]; c30 = c[30]; c31 = c[31]
+        t0 = sign * s[0]; t1 = sign * s[1]; t2 = sign * s[2]; t3 = sign * s[3]
+        t4 = sign * s[4]; t5 = sign * s[5]; t6 = sign * s[6]; t7 = sign * s[7]
+        t8 = sign * s[8]; t9 = sign * s[9]; t10 = sign * s[10]; t11 = sign * s[11]
+        t12 = sign * s[12]; t13 = sign * s[13]; t14 = sign * s[14]; t15 = sign * s[15]
+        t16 = sign * s[16]; t17 = sign * s[17]; t18 = sign * s[18]; t19 = sign * s[19]
+        t20 = sign * s[20]; t21 = sign * s[21]; t22 = sign * s[22]; t23 = sign * s[23]
+        t24 = sign * s[24]; t25 = sign * s[25]; t26 = sign * s[26]; t27 = sign * s[27]
+        t28 = sign * s[28]; t29 = sign * s[29]; t30 = sign * s[30]; t31 = sign * s[31]
+        xa[0] = c0 * p0 - t0 * q0; xa[1] = c1 * p1 - t1 * q1
+        xa[2] = c2 * p2 - t2 * q2; xa[3] = c3 * p3 - t3 * q3
+        xa[4] = c4 * p4 - t4 * q4; xa[5] = c5 * p5 - t5 * q5
+        xa[6] = c6 * p6 - t6 * q6; xa[7] = c7 * p7 - t7 * q7
+        xa[8] = c8 * p8 - t8 * q8; xa[9] = c9 * p9 - t9 * q9
+        xa[10] = c10 * p10 - t10 * q10; xa[11] = c11 * p11 - t11 * q11
+        xa[12] = c12 * p12 - t12 * q12; xa[13] = c13 * p13 - t13 * q13
+        xa[14] = c14 * p14 - t14 * q14; xa[15] = c15 * p15 - t15 * q15
+        xa[16] = c16 * p16 - t16 * q16; xa[17] = c17 * p17 - t17 * q17
+        xa[18] = c18 * p18 - t18 * q18; xa[19] = c19 * p19 - t19 * q19
+        xa[20] = c20 * p20 - t20 * q20; xa[21] = c21 * p21 - t21 * q21
+        xa[22] = c22 * p22 - t22 * q22; xa[23] = c23 * p23 - t23 * q23
+        xa[24] = c24 * p24 - t24 * q24; xa[25] = c25 * p25 - t25 * q25
+        xa[26] = c26 * p26 - t26 * q26; xa[27] = c27 * p27 - t27 * q27
+        xa[28] = c28 * p28 - t28 * q28; xa[29] = c29 * p29 - t29 * q29
+        xa[30] = c30 * p30 - t30 * q30; xa[31] = c31 * p31 - t31 * q31
+        xb[0] = t0 * p0 + c0 * q0; xb[1] = t1 * p1 + c1 * q1
+        xb[2] = t2 * p2 + c2 * q2; xb[3] = t3 * p3 + c3 * q3
+        xb[4] = t4 * p4 + c4 * q4; xb[5] = t5 * p5 + c5 * q5
+        xb[6] = t6 * p6 + c6 * q6; xb[7] = t7 * p7 + c7 * q7
+        xb[8] = t8 * p8 + c8 * q8; xb[9] = t9 * p9 + c9 * q9
+        xb[10] = t10 * p10 + c10 * q10; xb[11] = t11 * p11 + c11 * q11
+        xb[12] = t12 * p12 + c12 * q12; xb[13] = t13 * p13 + c13 * q13
+        xb[14] = t14 * p14 + c14 * q14; xb[15] = t15 * p15 + c15 * q15
+        xb[16] = t16 * p16 + c16 * q16; xb[17] = t17 * p17 + c17 * q17
+        xb[18] = t18 * p18 + c18 * q18; xb[19] = t19 * p19 + c19 * q19
+        xb[20] = t20 * p20 + c20 * q20; xb[21] = t21 * p21 + c21 * q21
+        xb[22] = t22 * p22 + c22 * q22; xb[23] = t23 * p23 + c23 * q23
+        xb[24] = t24 * p24 + c24 * q24; xb[25] = t25 * p25 + c25 * q25
+        xb[26] = t26 * p26 + c26 * q26; xb[27] = t27 * p27 + c27 * q27
+        xb[28] = t28 * p28 + c28 * q28; xb[29] = t29 * p29 + c29 * q29
+        xb[30] = t30 * p30 + c30 * q30; xb[31] = t31 * p31 + c31 * q31
+    for i in range(ones.size):
+        a = ones[i]
+        xa = X[a]
+        xa[0] = rows[k0, a]; xa[1] = rows[k1, a]; xa[2] = rows[k2, a]; xa[3] = rows[k3, a]
+        xa[4] = rows[k4, a]; xa[5] = rows[k5, a]; xa[6] = rows[k6, a]; xa[7] = rows[k7, a]
+        xa[8] = rows[k8, a]; xa[9] = rows[k9, a]; xa[10] = rows[k10, a]; xa[11] = rows[k11, a]
+        xa[12] = rows[k12, a]; xa[13] = rows[k13, a]; xa[14] = rows[k14, a]; xa[15] = rows[k15, a]
+        xa[16] = rows[k16, a]; xa[17] = rows[k17, a]; xa[18] = rows[k18, a]; xa[19] = rows[k19, a]
+        xa[20] = rows[k20, a]; xa[21] = rows[k21, a]; xa[22] = rows[k22, a]; xa[23] = rows[k23, a]
+        xa[24] = rows[k24, a]; xa[25] = rows[k25, a]; xa[26] = rows[k26, a]; xa[27] = rows[k27, a]
+        xa[28] = rows[k28, a]; xa[29] = rows[k29, a]; xa[30] = rows[k30, a]; xa[31] = rows[k31, a]

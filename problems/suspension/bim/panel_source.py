@@ -43,7 +43,8 @@ from contextlib import contextmanager
 
 from numba import config, njit
 
-__all__ = ["WIDTH", "rows_scalar", "rows_lanes", "turns", "vectorising"]
+__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "turns",
+           "vectorising"]
 
 WIDTH = {width}
 LANES = {lanes}
@@ -112,12 +113,83 @@ def _turns() -> list[str]:
     return out
 
 
+def _half(fmt: str, h: int, indent: int) -> list[str]:
+    """``fmt.format(j=j, c=h * LANES + j)`` for the LANES columns of half ``h``."""
+    items = [fmt.format(j=j, c=h * LANES + j) for j in range(LANES)]
+    pad = " " * indent
+    return [pad + "; ".join(items[i:i + 4]) for i in range(0, LANES, 4)]
+
+
+def _rows_turned() -> list[str]:
+    out = ["", "", _JIT, "def rows_turned(rp, ci, cv, zi, zj, zm, ones, C, S, sign, X, Y):",
+           '    """``Y = Rz Q X``: the rows of ``Q X`` (``Q`` given as for :func:`rows_scalar`)',
+           '    turned about z as :func:`turns` does, pair ``(zi[k], zj[k])`` by order ``zm[k]``;',
+           '    the rows ``ones`` (order 0) as they are.  Each half of the columns in turn, so',
+           '    that both rows of a pair are summed in registers."""',
+           "    for k in range(zi.size):",
+           "        a = zi[k]",
+           "        b = zj[k]",
+           "        c = C[zm[k]]",
+           "        s = S[zm[k]]",
+           "        ya = Y[a]",
+           "        yb = Y[b]"]
+    for h in range(2):
+        out += _half("p{j} = 0.0", h, 8) + _half("q{j} = 0.0", h, 8)
+        out += ["        for e in range(rp[a], rp[a + 1]):",
+                "            x = X[ci[e]]",
+                "            w = cv[e]"]
+        out += _half("p{j} += w * x[{c}]", h, 12)
+        out += ["        for e in range(rp[b], rp[b + 1]):",
+                "            x = X[ci[e]]",
+                "            w = cv[e]"]
+        out += _half("q{j} += w * x[{c}]", h, 12)
+        out += _half("c{j} = c[{c}]", h, 8) + _half("t{j} = sign * s[{c}]", h, 8)
+        out += _half("ya[{c}] = c{j} * p{j} - t{j} * q{j}", h, 8)
+        out += _half("yb[{c}] = t{j} * p{j} + c{j} * q{j}", h, 8)
+    out += ["    for k in range(ones.size):",
+            "        a = ones[k]"]
+    out += _cols("s{j} = 0.0")
+    out += ["        for e in range(rp[a], rp[a + 1]):",
+            "            x = X[ci[e]]",
+            "            w = cv[e]"]
+    out += _cols("s{j} += w * x[{j}]", indent=12)
+    out.append("        y = Y[a]")
+    out += _cols("y[{j}] = s{j}")
+    return out
+
+
+def _gather_turned() -> list[str]:
+    out = ["", "", _JIT, "def gather_turned(rows, k, zi, zj, zm, ones, C, S, sign, X):",
+           '    """``X[r, j] = rows[k[j], r]`` turned about z as :func:`rows_turned` turns."""']
+    out += _cols("k{j} = k[{j}]", indent=4)
+    out += ["    for i in range(zi.size):",
+            "        a = zi[i]",
+            "        b = zj[i]",
+            "        c = C[zm[i]]",
+            "        s = S[zm[i]]",
+            "        xa = X[a]",
+            "        xb = X[b]"]
+    out += _cols("p{j} = rows[k{j}, a]")
+    out += _cols("q{j} = rows[k{j}, b]")
+    out += _cols("c{j} = c[{j}]")
+    out += _cols("t{j} = sign * s[{j}]")
+    out += _cols("xa[{j}] = c{j} * p{j} - t{j} * q{j}", per_line=2)
+    out += _cols("xb[{j}] = t{j} * p{j} + c{j} * q{j}", per_line=2)
+    out += ["    for i in range(ones.size):",
+            "        a = ones[i]",
+            "        xa = X[a]"]
+    out += _cols("xa[{j}] = rows[k{j}, a]")
+    return out
+
+
 def render() -> str:
     """The source of :mod:`.panel_kernels`."""
     lines = [_HEAD.format(width=WIDTH, lanes=LANES).rstrip("\n")]
     lines += _rows("rows_scalar", lanes=False)
     lines += _rows("rows_lanes", lanes=True)
     lines += _turns()
+    lines += _rows_turned()
+    lines += _gather_turned()
     return "\n".join(lines) + "\n"
 
 
