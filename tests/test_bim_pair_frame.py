@@ -107,3 +107,44 @@ def test_the_operator_uses_the_pair_frame_and_matches_the_rotated_kernel(plan):
     old = StoredBlocks(plan)
     old.frame = None
     assert _rel(got, old.apply(coef)) <= 1e-12
+
+
+def test_the_panel_kernels_file_is_the_generated_source():
+    """panel_kernels.py is what panel_source.render() writes (edit the generator, not the
+    generated file)."""
+    from lcpbench.problems.suspension.bim import panel_source
+
+    assert panel_source.target().read_text() == panel_source.render()
+
+
+def test_the_vectoriser_settings_are_restored():
+    from numba import config
+
+    from lcpbench.problems.suspension.bim.panel_kernels import vectorising
+
+    before = config.SLP_VECTORIZE, config.LOOP_VECTORIZE
+    with pytest.raises(RuntimeError), vectorising():
+        assert (config.SLP_VECTORIZE, config.LOOP_VECTORIZE) == (1, 0)
+        raise RuntimeError
+    assert (config.SLP_VECTORIZE, config.LOOP_VECTORIZE) == before
+
+
+def test_the_panel_order_keeps_each_orders_coaxial_rows_together():
+    """In the panel's order the coaxial entries couple rows of one order and type only,
+    and those rows are contiguous: a permutation of the coefficients."""
+    from lcpbench.problems.suspension.bim.pair_frame import _layout, _panel_order
+    from lcpbench.problems.suspension.bim.sphere_vsh import vsh_basis
+
+    p = 8
+    order = _panel_order(_layout(p))
+    nv = int(order_mask(p).shape[0])
+    assert np.array_equal(np.sort(order), np.arange(nv))
+    inv = np.argsort(order)
+    table = coaxial_table(p, table_range(p))
+    rows, cols = np.nonzero(order_mask(p))
+    keep = coaxial_support(table)
+    basis = vsh_basis(p)
+    m = np.abs(np.asarray(basis.order))[order]
+    # the rows of each order form one contiguous run of the panel
+    assert np.all(np.diff(m) >= 0)
+    assert np.array_equal(m[inv[rows[keep]]], m[inv[cols[keep]]])

@@ -34,19 +34,22 @@ output.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import get_num_threads, njit, prange
 
 from .coaxial import CoaxialTable, order_mask
 from .jit import parallel_and_serial
+from .panel_kernels import LANES as _PANEL_LANES
+from .panel_kernels import WIDTH, gather_turned, rows_lanes, rows_scalar, rows_turned, vectorising
 from .rotation import degree_slices, wigner_quarter
 
 __all__ = ["LANES", "ZERO_TOL", "PairFrame", "coaxial_support"]
 
-LANES = 16
-"""Items (a pair and its reverse, or a pair alone) per chunk: the length of the contiguous
-vectors the kernel works on (measured: 8 to 32 are within a few percent at p = 8)."""
+LANES = _PANEL_LANES
+"""Items (a pair and its reverse, or a pair alone) per chunk: a chunk is one panel of the
+kernel (:mod:`.panel_kernels`), its two directions side by side."""
 
 ZERO_TOL = 1e-11
 """An equal-order entry whose bound over the whole table is below this times the table's
@@ -65,139 +68,59 @@ def coaxial_support(table: CoaxialTable) -> np.ndarray:
 
 # ---- the compiled kernel ---------------------------------------------------------------------
 
-@njit(cache=True, fastmath=True)
-def _turn_z(x, layout, cs, which, sign, V, B):
-    """Turns about z of the columns of ``x`` (nv, V*B): rows (cos m, sin m) of every (kind,
-    degree) by ``sign * m * angle``, the angle's cosines and sines ``cs[which]`` (p+1, 2, B)
-    per order, direction (column block v uses direction v % 2) and item."""
-    for n in range(1, layout.shape[0]):
-        lo, kinds = layout[n, 0], layout[n, 1]
-        w = 2 * n + 1
-        for t in range(kinds):
-            base = lo + t * w
-            for m in range(1, n + 1):
-                i = base + 2 * m - 1
-                j = i + 1
-                for v in range(V):
-                    d = v % 2
-                    for lane in range(B):
-                        c = cs[which, m, d, lane]
-                        s = sign * cs[which + 1, m, d, lane]
-                        col = v * B + lane
-                        xi = x[i, col]
-                        xj = x[j, col]
-                        x[i, col] = c * xi - s * xj
-                        x[j, col] = s * xi + c * xj
+@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
+def _scatter(Y, k, out):
+    """``out[k[j], r] += Y[r, j]``: the panel's columns added to rows of ``out`` (column
+    by column: each output row is read and written once per column, in order)."""
+    for j in range(WIDTH):
+        o = out[k[j]]
+        for r in range(Y.shape[0]):
+            o[r] += Y[r, j]
 
 
-@njit(cache=True, fastmath=True)
-def _quarter(x, y, layout, qptr, qa, qb, qv, transpose):
-    """``y = P x`` (or ``P^T x``) on every (kind, degree) block of rows, ``P`` the quarter
-    turn of each degree given by its nonzeros ``qa, qb, qv`` (rows, columns, values;
-    degree n's are ``qptr[n]:qptr[n+1]``)."""
-    VB = x.shape[1]
-    for n in range(layout.shape[0]):
-        lo, kinds = layout[n, 0], layout[n, 1]
-        w = 2 * n + 1
-        for t in range(kinds):
-            base = lo + t * w
-            for a in range(w):
-                for col in range(VB):
-                    y[base + a, col] = 0.0
-            for e in range(qptr[n], qptr[n + 1]):
-                a, b = (qb[e], qa[e]) if transpose else (qa[e], qb[e])
-                val = qv[e]
-                for col in range(VB):
-                    y[base + a, col] += val * x[base + b, col]
-
-
-@njit(cache=True, fastmath=True)
-def _chunk(vals, cs, tgt, src, coef, xadj, nf, na, layout, qptr, qa, qb, qv, er, ec, dev,
-           L, X, Y, acc, bar):
-    """One chunk: ``nf`` forward vectors (``L D E D^T coef[src]`` added to ``acc[tgt]``)
-    and ``na`` transposed ones (``D E^T D^T L^T xadj[tgt]`` added to ``bar[src]``), each
-    one per direction (``nf``, ``na`` are 0 or 2)."""
-    nv = X.shape[0]
-    B = vals.shape[1]
-    V = nf + na
-    for v in range(V):                                   # gather (and L^T on the adjoint)
-        d = v % 2
-        for lane in range(B):
-            col = v * B + lane
-            k = src[d, lane] if v < nf else tgt[d, lane]
-            if k < 0:
-                for r in range(nv):
-                    X[r, col] = 0.0
-                continue
-            row = coef[k] if v < nf else xadj[k]
-            for r in range(nv):
-                X[r, col] = row[r]
-            if v >= nf:
-                for i in range(dev.size):
-                    X[dev[i], col] = 0.0
-                for i in range(dev.size):
-                    xi = row[dev[i]]
-                    for r in range(nv):
-                        X[r, col] += L[i, r] * xi
+@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
+def _panel(vals, cs, rows, kin, out, kout, adjoint, q, z, e, X, Y):
+    """One panel: ``D E D^T`` (``adjoint`` false) or ``D E^T D^T`` (true) of the columns
+    gathered from ``rows[kin]``, added to ``out[kout]``.  ``q`` holds the quarter turn
+    ``P`` and ``P^T`` as row lists over every coefficient, ``z`` the (cos, sin) row pairs of
+    the turns about z and the rows of order 0, ``e`` the coaxial entries by row (``E``)
+    and by column (``E^T``).  Each turn about z is applied as the rows it turns are
+    written (:mod:`.panel_kernels`)."""
+    qrp, qci, qcv, trp, tci, tcv = q
+    zi, zj, zm, ones = z
+    frp, fci, fwi, arp, aci, awi = e
+    m1 = cs.shape[1]
+    cphi, sphi = cs[0].reshape((m1, WIDTH)), cs[1].reshape((m1, WIDTH))
+    cth, sth = cs[2].reshape((m1, WIDTH)), cs[3].reshape((m1, WIDTH))
     # into the pair frame: D^T = P Rz(-theta) P^T Rz(-phi)
-    _turn_z(X, layout, cs, 0, -1.0, V, B)
-    _quarter(X, Y, layout, qptr, qa, qb, qv, True)
-    _turn_z(Y, layout, cs, 2, -1.0, V, B)
-    _quarter(Y, X, layout, qptr, qa, qb, qv, False)
-    for r in range(nv):                                  # the coaxial block
-        for col in range(V * B):
-            Y[r, col] = 0.0
-    for e in range(er.size):
-        r, c = er[e], ec[e]
-        for v in range(V):
-            a, b = (r, c) if v < nf else (c, r)
-            off = v * B
-            for lane in range(B):
-                Y[a, off + lane] += vals[e, lane] * X[b, off + lane]
+    gather_turned(rows, kin, zi, zj, zm, ones, cphi, sphi, -1.0, X)
+    rows_turned(trp, tci, tcv, zi, zj, zm, ones, cth, sth, -1.0, X, Y)
+    rows_scalar(qrp, qci, qcv, Y, X)
+    if adjoint:                                          # the coaxial block
+        rows_lanes(arp, aci, awi, vals, X, Y)
+    else:
+        rows_lanes(frp, fci, fwi, vals, X, Y)
     # back to the lab frame: D = Rz(phi) P Rz(theta) P^T
-    _quarter(Y, X, layout, qptr, qa, qb, qv, True)
-    _turn_z(X, layout, cs, 2, 1.0, V, B)
-    _quarter(X, Y, layout, qptr, qa, qb, qv, False)
-    _turn_z(Y, layout, cs, 0, 1.0, V, B)
-    for v in range(V):                                   # L on the forward, scatter
-        d = v % 2
-        for lane in range(B):
-            col = v * B + lane
-            if v < nf:
-                k = tgt[d, lane]
-                if k < 0:
-                    continue
-                for i in range(dev.size):
-                    s = 0.0
-                    for r in range(nv):
-                        s += L[i, r] * Y[r, col]
-                    X[i, col] = s
-                for i in range(dev.size):
-                    Y[dev[i], col] = X[i, col]
-                out = acc[k]
-            else:
-                k = src[d, lane]
-                if k < 0:
-                    continue
-                out = bar[k]
-            for r in range(nv):
-                out[r] += Y[r, col]
+    rows_turned(trp, tci, tcv, zi, zj, zm, ones, cth, sth, 1.0, Y, X)
+    rows_turned(qrp, qci, qcv, zi, zj, zm, ones, cphi, sphi, 1.0, X, Y)
+    _scatter(Y, kout, out)
 
 
-def _run(vals, cs, tgt, src, coef, xadj, nf, na, layout, qptr, qa, qb, qv, er, ec, dev, L,
-         acc, bar):
+def _run(vals, cs, src, tgt, coef, xadj, forward, adjoint, q, z, e, acc, bar):
     """Every chunk, the threads each taking a contiguous share and summing into their own
-    copy ``acc[t]`` / ``bar[t]``."""
-    T = acc.shape[0]
+    copy ``acc[t]`` / ``bar[t]``; ``src``, ``tgt`` (C, WIDTH) the panels' sphere rows
+    (an empty slot: the zero row past the last sphere)."""
+    T = acc.shape[0] if forward else bar.shape[0]
     C = vals.shape[0]
-    nv = acc.shape[2]
-    B = vals.shape[2]
+    nv = acc.shape[2] if forward else bar.shape[2]
     for t in prange(T):
-        X = np.empty((nv, (nf + na) * B))
-        Y = np.empty((nv, (nf + na) * B))
+        X = np.empty((nv, WIDTH))
+        Y = np.empty((nv, WIDTH))
         for c in range(t * C // T, (t + 1) * C // T):
-            _chunk(vals[c], cs[c], tgt[c], src[c], coef, xadj, nf, na, layout, qptr, qa,
-                   qb, qv, er, ec, dev, L, X, Y, acc[t], bar[t])
+            if forward:
+                _panel(vals[c], cs[c], coef, src[c], acc[t], tgt[c], False, q, z, e, X, Y)
+            if adjoint:
+                _panel(vals[c], cs[c], xadj, tgt[c], bar[t], src[c], True, q, z, e, X, Y)
 
 
 _run_parallel, _run_serial = parallel_and_serial(_run)
@@ -223,6 +146,23 @@ def _layout(p: int) -> np.ndarray:
     """Per degree: first coefficient and number of kinds."""
     return np.array([(int(rows[0, 0]), rows.shape[0]) for rows in degree_slices(p)],
                     dtype=np.int64)
+
+
+def _panel_order(layout: np.ndarray) -> np.ndarray:
+    """The order of the coefficients in a panel (panel row i holds coefficient
+    ``order[i]``): by order m, then cosine before sine, then kind and degree, so that the
+    rows the coaxial block couples (equal order and type) lie together and one order's
+    rows stay in the first-level cache while its entries are summed."""
+    key = []
+    for n in range(layout.shape[0]):
+        lo, kinds = (int(v) for v in layout[n])
+        w = 2 * n + 1
+        for t in range(kinds):
+            for i in range(w):
+                m, sine = (i + 1) // 2, int(i > 0 and i % 2 == 0)
+                key.append((m, sine, t, n, lo + t * w + i))
+    key.sort()
+    return np.array([k[-1] for k in key], dtype=np.int64)
 
 
 def _items(tgt: np.ndarray, src: np.ndarray, rho: np.ndarray) -> np.ndarray:
@@ -306,9 +246,12 @@ class PairFrame:
         C = -(-items.shape[0] // LANES)
         pad = np.full((C * LANES, 2), -1, dtype=np.int64)
         pad[:items.shape[0]] = items
+        inv = np.argsort(_panel_order(_layout(p)))      # coefficient -> panel row
+        by_row = np.lexsort((inv[cols[keep]], inv[rows[keep]]))
         vals = np.zeros((C * LANES, keep.size))
         if items.shape[0]:
-            vals[:items.shape[0]] = table.values(rho[items[:, 0]], columns=keep)
+            vals[:items.shape[0]] = table.values(rho[items[:, 0]], columns=keep)[:, by_row]
+        keep = keep[by_row]
         theta = np.arctan2(np.hypot(u[:, 0], u[:, 1]), u[:, 2])
         phi = np.arctan2(u[:, 1], u[:, 0])
         m = np.arange(p + 1, dtype=float)
@@ -358,22 +301,84 @@ class PairFrame:
         per = 4 * quarter + 4 * turns + self.er.size + self.dev.size * self.nv
         return int(2 * self.vals.shape[0] * self.vals.shape[2] * per)
 
+    @cached_property
+    def _structure(self) -> tuple:
+        """The kernel's fixed arrays (every index unsigned, rows in the panel's order
+        :func:`_panel_order`, which comes first): the quarter turn ``P`` and
+        ``P^T`` as row lists over the ``nv`` coefficients, the row pairs of the turns
+        about z, the coaxial entries by row and by column, the output map's rows."""
+        nv = self.nv
+        order = _panel_order(self.layout)
+        inv = np.argsort(order)
+        qptr, qa, qb, qv = self.quarter
+        P = np.zeros((nv, nv))
+        zi, zj, zm = [], [], []
+        for n in range(self.layout.shape[0]):
+            lo, kinds = (int(v) for v in self.layout[n])
+            w = 2 * n + 1
+            sl = slice(qptr[n], qptr[n + 1])
+            for t in range(kinds):
+                base = lo + t * w
+                P[base + qa[sl], base + qb[sl]] = qv[sl]
+                for m in range(1, n + 1):
+                    zi.append(base + 2 * m - 1)
+                    zj.append(base + 2 * m)
+                    zm.append(m)
+        u8 = np.uint64
+
+        def by_rows(rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
+            order = np.lexsort((cols, rows))
+            ptr = np.searchsorted(rows[order], np.arange(nv + 1))
+            return ptr.astype(u8), cols[order].astype(u8), order.astype(u8)
+
+        pa, pb = np.nonzero(P)
+        pv = P[pa, pb]
+        qrp, qci, qo = by_rows(inv[pa], inv[pb])
+        trp, tci, to = by_rows(inv[pb], inv[pa])
+        return (order,
+                (qrp, qci, pv[qo.astype(np.int64)], trp, tci, pv[to.astype(np.int64)]),
+                (inv[zi].astype(u8), inv[zj].astype(u8), np.array(zm, u8),
+                 np.setdiff1d(np.arange(nv), inv[zi + zj]).astype(u8)),
+                by_rows(inv[self.er], inv[self.ec]) + by_rows(inv[self.ec], inv[self.er]))
+
     def _apply(self, coef: np.ndarray | None, xadj: np.ndarray | None, M: int,
                parallel: bool) -> tuple[np.ndarray, np.ndarray]:
         T = get_num_threads() if parallel else 1
         T = max(1, min(T, self.vals.shape[0]))
         nv = self.nv
-        nf, na = (0 if coef is None else 2), (0 if xadj is None else 2)
-        acc = np.zeros((T, M, nv) if nf else (1, 1, nv))
-        bar = np.zeros((T, M, nv) if na else (1, 1, nv))
-        empty = np.zeros((1, nv))
-        c = empty if coef is None else np.ascontiguousarray(coef, dtype=float)
-        x = empty if xadj is None else np.ascontiguousarray(xadj, dtype=float)
-        if self.vals.shape[0]:
+        C = self.vals.shape[0]
+        fwd, adj = coef is not None, xadj is not None
+        acc = np.zeros((T, M + 1, nv) if fwd else (1, 1, nv))
+        bar = np.zeros((T, M + 1, nv) if adj else (1, 1, nv))
+
+        order, q, z, e = self._structure
+        dev, left = self.dev, self.L
+
+        def rows(a: np.ndarray | None, transpose: bool) -> np.ndarray:
+            out = np.zeros((M + 1 if a is not None else 1, nv))
+            if a is not None:
+                if transpose and dev.size:               # L^T on every sphere's row
+                    a = a.copy()
+                    held = a[:, dev].copy()
+                    a[:, dev] = 0.0
+                    a += held @ left
+                out[:M] = a[:, order]
+            return out
+
+        def slots(k: np.ndarray) -> np.ndarray:
+            return np.where(k < 0, M, k).reshape(C, WIDTH).astype(np.uint64)
+
+        if C:
             fn = _run_parallel if T > 1 else _run_serial
-            fn(self.vals, self.cs, self.tgt, self.src, c, x, nf, na, self.layout,
-               *self.quarter, self.er, self.ec, self.dev, self.L, acc, bar)
-        return acc.sum(axis=0), bar.sum(axis=0)
+            with vectorising():
+                fn(self.vals, self.cs, slots(self.src), slots(self.tgt), rows(coef, False),
+                   rows(xadj, True), fwd, adj, q, z, e, acc, bar)
+        back = np.empty(nv, dtype=np.int64)
+        back[order] = np.arange(nv)
+        out = acc[:, :M].sum(axis=0)[:, back]
+        if fwd and dev.size:                             # L on every sphere's row
+            out[:, dev] = out @ left.T
+        return out, bar[:, :M].sum(axis=0)[:, back]
 
     def forward(self, coef: np.ndarray, acc: np.ndarray, parallel: bool = True) -> None:
         """``acc[i] += sum over pairs k with target i of block_k coef[src_k]``; ``coef``,
