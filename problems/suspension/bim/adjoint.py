@@ -138,7 +138,10 @@ class AdjointPieces:
         p = op.p
         Dbar = np.zeros((op.M, 5, p + 1, p + 1), dtype=np.complex128)
         for g in self.fly:
-            tb = dense_rows(ob[g["tgt"]], self.proj) if g["projected"] else ob[g["tgt"]]
+            tb = ob[g["tgt"]]
+            if g["projected"]:
+                assert self.proj is not None
+                tb = dense_rows(tb, self.proj)
             traction_expansion_adjoint(g["pts"], g["nrm"], g["size"], g["ptr"], g["blk"],
                                        op.centers, op.radii,
                                        np.ascontiguousarray(tb.reshape(-1, 3)), p, Dbar)
@@ -157,10 +160,11 @@ class AdjointPieces:
             nq = sphere_grid(q).size
             Fb = np.stack([f[b0:b0 + J.size * nq] for f in f_bar], axis=1).reshape(J.size, nq, 3)
             Fb = (Fb * plan.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
-            if self.synth[L] is None:
+            S = self.synth[L]
+            if S is None:
                 s_bar[J] += Fb
             else:
-                coef_bar[J] += dense_rows(Fb, self.synth[L])
+                coef_bar[J] += dense_rows(Fb, S)
 
     def apply_bie(self, w: np.ndarray) -> np.ndarray:
         """Transpose of the traction operator ``A_bie`` at full accuracy (rung 0).  With
@@ -194,6 +198,7 @@ class AdjointPieces:
                 tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
                 f_bar = [np.zeros(plan.n_src) for _ in range(3)]
                 g = self.direct
+                assert g is not None                    # set whenever there are sources
                 if g["start"].size:
                     fn = (direct_traction_adjoint if g["work"] > PARALLEL_WORK
                           else direct_traction_adjoint_serial)
@@ -204,6 +209,7 @@ class AdjointPieces:
                     fb = fmm_traction_adjoint(op.tgt_pts, op.tgt_nrm, tb, op.quad_tol)
                     sub = [np.zeros(plan.n_src) for _ in range(3)]
                     g = self.fmm_sub
+                    assert g is not None                # set with far="fmm"
                     direct_traction_adjoint_skip(*self.tgt, *tbc, N, g["ptr"], g["tgt"],
                                                  g["start"], g["stop"], *plan.src_xyz, *sub,
                                                  True)

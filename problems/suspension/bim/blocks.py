@@ -27,6 +27,7 @@ from .kernels_adjoint import (
 )
 from .kernels_rotated import (
     FlyPairs,
+    PlanBlocks,
     RotatedPairs,
     rotated_both,
     rotated_both_serial,
@@ -92,6 +93,7 @@ class StoredBlocks:
             self._rot = None
         else:
             d, r = plan.dense_pos, plan.rot_pos
+            assert isinstance(plan.blocks, PlanBlocks)     # rotated pairs: a mixed stack
             self._dense = _part(plan.blocks.dense, tgt[d], src[d], plan.M)
             self._rot = _part(self.rotated.form, tgt[r], src[r], plan.M)
             if self.fly is not None:

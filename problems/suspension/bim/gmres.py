@@ -9,6 +9,8 @@ decision uses a full-accuracy residual.  The forward and the transposed solves o
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.sparse.linalg import LinearOperator, gmres
 
@@ -64,7 +66,7 @@ def relaxed_gmres(matvec, b: np.ndarray, x0: np.ndarray, rtol: float, restart: i
     m = max(1, min(int(restart), n))
     # rung: accuracy of the next product; then: rung after it (set when that product is
     # scipy's initial residual b - A x0); its / cycle: inner iterations, total and in cycle
-    state = {"rung": 0, "then": None, "its": 0, "cycle": 0, "restart": m}
+    state: dict[str, Any] = {"rung": 0, "then": None, "its": 0, "cycle": 0, "restart": m}
     cache: dict = {}                        # last product: input copy, rung, output
 
     def product(v: np.ndarray) -> np.ndarray:

@@ -84,7 +84,7 @@ from .adjoint import AdjointPieces
 from .blocks import StoredBlocks
 from .kernels import dense_rows
 from .pairs import PairPlan
-from .recycle import BUDGET_FLOOR, KrylovBudget, RecycledGCR, default_capacity, solve_together
+from .recycle import BUDGET_FLOOR, KrylovBudget, default_capacity, solve_together
 from .setup import NEAR_UPSAMPLE, BimSetup
 from .solves import BimConvergenceWarning, KrylovSolves
 from .sphere_vsh import default_quad_tol
@@ -177,8 +177,6 @@ class BimMobility(KrylovSolves, LinearOperator):
     """
 
     setup: BimSetup
-    _recycler: RecycledGCR | None
-    _adj_recycler: RecycledGCR | None
     _pieces: AdjointPieces | None
 
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,

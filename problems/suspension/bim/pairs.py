@@ -266,7 +266,7 @@ class PairPlan:
         M, native = self.M, self.native
         nq = np.array([sphere_grid(q).size for q in self.levels], dtype=np.int64)
 
-        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
+        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
             L = lv[ii, jj]
             start = slot[L, jj]
@@ -458,7 +458,7 @@ class PairPlan:
         cfac = b.to_complex[flat, np.arange(nv)]
         fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
-        to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
+        to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else b.A,
                    False: b.A}
         # expansion pairs: responses on the finer grid, projected onto degree p;
         # quadrature pairs (smooth traction) and node sampling: at the native nodes

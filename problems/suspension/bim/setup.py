@@ -246,15 +246,16 @@ class BimSetup:
             if J.size == 0:
                 continue
             b0 = plan.lvl_base[L]
-            if plan.synth[L] is None:
+            S = plan.synth[L]
+            if S is None:
                 nq = self.N
                 F = s[J].reshape(J.size, nq, 3) * plan.src_scale[L][:, :, None]
                 for k in range(3):
                     f[k][b0:b0 + J.size * nq] = F[:, :, k].reshape(-1)
             else:
-                fn = (synthesize_forces if J.size * plan.synth[L].size > PARALLEL_WORK
+                fn = (synthesize_forces if J.size * S.size > PARALLEL_WORK
                       else synthesize_forces_serial)
-                fn(coef, J, plan.synth[L], plan.src_scale[L], b0, *f)
+                fn(coef, J, S, plan.src_scale[L], b0, *f)
         return f
 
     def _near_on_the_fly(self, s: np.ndarray) -> np.ndarray:

@@ -13,13 +13,18 @@ import contextlib
 import warnings
 import weakref
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..geometry import check_tolerance
 from .gmres import relaxed_gmres
 from .pairs import RELAX_STEP
-from .recycle import RecycledGCR
+from .recycle import KrylovBudget, RecycledGCR
+
+if TYPE_CHECKING:
+    from .adjoint import AdjointPieces
+    from .setup import BimSetup
 
 __all__ = ["KrylovSolves", "BimConvergenceWarning"]
 
@@ -32,8 +37,29 @@ class KrylovSolves:
     """Recycled spaces, records and stopping tolerance of a boundary-integral mobility."""
 
     _relaxed: float | None = None     # a looser tolerance asked by at_accuracy
+    _recycler: RecycledGCR | None
+    _adj_recycler: RecycledGCR | None
 
-    def _new_recyclers(self) -> tuple:
+    if TYPE_CHECKING:                 # what the operator provides
+        setup: BimSetup
+        recycle: int
+        krylov: KrylovBudget
+        eps_gmres: float
+        maxiter: int
+        on_failure: str
+
+        @property
+        def M(self) -> int: ...
+
+        @property
+        def p(self) -> int: ...
+
+        @property
+        def adjoint_pieces(self) -> AdjointPieces: ...
+
+        def apply_preconditioned(self, y: np.ndarray, rung: int = 0) -> np.ndarray: ...
+
+    def _new_recyclers(self) -> tuple[RecycledGCR | None, RecycledGCR | None]:
         """Empty recycled spaces for the forward and the transposed equation (None, None
         without recycling)."""
         n, cap = self.setup.unknowns, self.recycle
@@ -43,8 +69,14 @@ class KrylovSolves:
         # a reference cycle, and the blocks and kept directions of every configuration would
         # wait for Python's cyclic collector (docs/mobility.md, "Memory per time step")
         me = weakref.ref(self)
-        return (RecycledGCR(lambda v: me().apply_preconditioned(v), n, cap, self.krylov),
-                RecycledGCR(lambda v: me().adjoint_pieces.operator(v), n, cap, self.krylov))
+
+        def host() -> KrylovSolves:
+            op = me()
+            assert op is not None, "the operator of a recycled space was collected"
+            return op
+
+        return (RecycledGCR(lambda v: host().apply_preconditioned(v), n, cap, self.krylov),
+                RecycledGCR(lambda v: host().adjoint_pieces.operator(v), n, cap, self.krylov))
 
     @contextlib.contextmanager
     def cold_products(self) -> Iterator[None]:

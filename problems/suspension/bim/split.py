@@ -119,6 +119,7 @@ class _Group(NamedTuple):
             return self.rotated.work
         if self.blocks is not None:
             return int(self.blocks.size)
+        assert self.factors is not None          # neither dense nor rotated: factored
         return int(2 * self.factors[0].size)
 
     def _coef(self, coef: np.ndarray) -> np.ndarray:
@@ -137,6 +138,7 @@ class _Group(NamedTuple):
             fn = apply_blocks if self.work > PARALLEL_WORK else apply_blocks_serial
             fn(self.blocks, self.ptr, self.src, c, acc)
         else:
+            assert self.factors is not None
             first, second, off, rank, length = self.factors
             fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
             fn(first, second, off, rank, length, self.ptr, self.fwd, self.src, c, acc)
@@ -154,6 +156,7 @@ class _Group(NamedTuple):
                   else apply_blocks_adjoint_serial)
             fn(self.blocks, self.src_ptr, self.order, self.tgt, acc_bar, part)
         else:
+            assert self.factors is not None
             first, second, off, rank, length = self.factors
             fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
             fn(second, first, off, rank, length, self.src_ptr, self.order, self.tgt,
@@ -216,7 +219,8 @@ class SplitBlocks:
             self.groups = [_group(None, factors, np.arange(tgt.size), plan, basis.degree.size)]
             self.n_factored_blocks = int(tgt.size)
             self.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
-            self.block_sizes, self.block_ranks = length, factors[3]
+            self.block_sizes: np.ndarray | None = length
+            self.block_ranks: np.ndarray | None = factors[3]
         self.n_full_pairs = int((degree < 0).sum())
         self.n_truncated_pairs = int(far.sum())
         self.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
@@ -374,7 +378,7 @@ def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
                   rotated)
 
 
-def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
+def _factor(blocks: np.ndarray | PlanBlocks, length: np.ndarray, rank_tol: float) -> tuple:
     """Block k's leading ``length[k] x length[k]`` part by its singular value decomposition,
     cut at ``rank_tol`` times its largest singular value, in the ragged layout of
     :func:`kernels.apply_lowrank`: ``(first, second, off, rank, length)``, ``first`` the
