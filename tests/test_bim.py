@@ -14,6 +14,7 @@ from lcpbench.problems.suspension.bim import (
     BimMobility,
     bim_mobility,
 )
+from lcpbench.problems.suspension.bim.farfield import DirectSums, FmmSums
 from lcpbench.problems.suspension.bim.harmonics import unit_field
 from lcpbench.problems.suspension.bim.sphere_vsh import (
     expansion_coefficients,
@@ -316,6 +317,13 @@ def test_fmm_far_field_matches_direct():
     assert np.abs(uf - ua).max() <= 1e-8 * np.abs(ua).max()
     with pytest.raises(ValueError, match="far"):
         BimMobility(c, 1.0, p=4, far="tree")
+    # the strategies: the direct sums follow the tolerance ladder on coarse grids, the FMM
+    # is not relaxed and sums every native point (minus the pairs it must not include)
+    assert (A.setup.far, F.setup.far) == ("direct", "fmm")
+    assert isinstance(A.setup.far_field, DirectSums) and isinstance(F.setup.far_field, FmmSums)
+    assert len(A.tolerance_ladder) > 1 and len(F.tolerance_ladder) == 1
+    assert F.plan.lvl_spheres[F.plan.native].size == F.M
+    assert F.setup.far_field.removed is not None and F.setup.far_field.removed[2].size
 
 
 def test_relaxed_gmres_reaches_true_residual():

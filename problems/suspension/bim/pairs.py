@@ -29,6 +29,7 @@ import numpy as np
 from lcpbench.toolkit.blas import one_blas_thread
 
 from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
+from .farfield import FarField
 from .kernels import real_block_columns, traction_response
 from .kernels_rotated import FlyPairs, PlanBlocks, RotatedPairs
 from .pair_frame import PairFrame
@@ -109,8 +110,9 @@ class PairPlan:
         The order, the native and near-field grids, the near-field projection and the basis.
     quad_tol : float
         Quadrature accuracy of the full-accuracy rung.
-    far : {"direct", "fmm"}
-        Far-field engine (the FMM works on the native grid and is not relaxed).
+    far : FarField
+        The far-field strategy (:mod:`.farfield`): which source grids the quadrature
+        pairs may use, whether they are relaxed, and the ranges of the direct sums.
     near_block_mb : float
         Memory budget of the stored blocks.
     pair_blocks : {"table-all", "table", "direct"}
@@ -147,12 +149,10 @@ class PairPlan:
         the synthesis matrices of the upsampled levels.
     dir_ranges : list
         Per rung: ``(ptr, start, stop)`` source ranges summed by each target sphere.
-    fmm_sub : tuple
-        With ``far="fmm"``: the native-grid ranges removed from the FMM sum.
     """
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
-                 quad_tol: float, far: str, near_block_mb: float,
+                 quad_tol: float, far: FarField, near_block_mb: float,
                  pair_blocks: str = "table-all") -> None:
         if pair_blocks not in PAIR_BLOCKS:
             raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'direct' (every block built "
@@ -161,7 +161,7 @@ class PairPlan:
                              "pairs too)")
         self.pair_blocks = pair_blocks
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
-        self.quad_tol, self.far = quad_tol, far
+        self.quad_tol, self.far_field = quad_tol, far
         self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
         self.N = grids.grid.size
         self.basis = grids.basis
@@ -189,7 +189,7 @@ class PairPlan:
         levels = grid_levels(p)
         # accuracy ladder for relaxed (inexact) GMRES: quad_tol * RELAX_STEP^k <= 1e-4
         tols = [self.quad_tol]
-        if self.far == "direct":
+        if self.far_field.relaxes:
             while tols[-1] * RELAX_STEP <= 1e-4 * (1 + 1e-9) and len(tols) < 12:
                 tols.append(tols[-1] * RELAX_STEP)
         self.tolerance_ladder = tuple(tols)
@@ -213,8 +213,7 @@ class PairPlan:
         level_of, radius = classify(self.quad_tol)
         native = levels.index(p)
         self.native = native
-        if self.far == "fmm":       # the FMM works on the native grid: no coarser levels
-            level_of[(level_of >= 0) & (level_of < native)] = native
+        level_of = self.far_field.levels(level_of, native)
         if self.near_proj is not None:     # the projected zone: expansions at any tolerance
             level_of[(rho < PROJECT_RHO) & (level_of >= 0)] = -2
         self.level_radii = dict(zip(levels, radius.tolist()))
@@ -236,8 +235,8 @@ class PairPlan:
         base = 0
         for L, q in enumerate(levels):
             used = np.nonzero(np.any([(lv == L).any(axis=0) for lv in ladder_levels], axis=0))[0]
-            if L == native and self.far == "fmm":
-                used = np.arange(M)
+            if L == native:
+                used = self.far_field.native_sources(used, M)
             self.lvl_spheres.append(used)
             self.lvl_base.append(base)
             base += used.size * sphere_grid(q).size
@@ -261,8 +260,8 @@ class PairPlan:
 
     def _ranges(self, level_of: np.ndarray, ladder_levels: list[np.ndarray],
                 slot: np.ndarray) -> None:
-        """Per rung, the source ranges each target sphere sums (``dir_ranges``), and with
-        ``far="fmm"`` the native ranges removed from the FMM sum (``fmm_sub``)."""
+        """Per rung, the source ranges each target sphere sums (``dir_ranges``, as the
+        far-field strategy has them: :meth:`.farfield.FarField.ranges`)."""
         M, native = self.M, self.native
         nq = np.array([sphere_grid(q).size for q in self.levels], dtype=np.int64)
 
@@ -273,13 +272,7 @@ class PairPlan:
             ptr = np.searchsorted(ii, np.arange(M + 1)).astype(np.int64)
             return ptr, start.astype(np.int64), (start + nq[L]).astype(np.int64)
 
-        if self.far == "fmm":
-            # FMM sums all native points; remove its native self and non-native pairs
-            self.dir_ranges = [ranges(level_of, lambda lv: lv > native)]
-            self.fmm_sub = ranges(np.where(level_of == native, -2, native),
-                                  lambda lv: lv == native)
-        else:
-            self.dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
+        self.dir_ranges = self.far_field.ranges(level_of, ladder_levels, native, ranges)
 
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),

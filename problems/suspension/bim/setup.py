@@ -18,14 +18,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import check_configuration, check_no_overlap, check_order, check_viscosity
-from .fmm import resolve_far
+from .farfield import FarField, far_field
 from .kernels import (
     PARALLEL_WORK,
     center_readout,
     dense_rows,
     direct_traction_ranges,
     direct_traction_ranges_serial,
-    direct_traction_skip,
     synthesize_forces,
     synthesize_forces_serial,
     traction_expansion,
@@ -62,7 +61,8 @@ class BimSetup:
         Accuracy (per unit density) of the quadrature between spheres, in (0, 1).
     far : {"direct", "fmm", "auto"}
         Far-field engine (``auto``: :func:`.fmm.resolve_far`, by the number of spheres);
-        :attr:`far` is the engine used.
+        :attr:`far` is the engine used, :attr:`far_field` its strategy
+        (:mod:`.farfield`), which owns its forward and transposed sums.
     near_upsample : float
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
@@ -86,7 +86,7 @@ class BimSetup:
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
         check_no_overlap(c, r, "bim")
-        far = resolve_far(far, c.shape[0])
+        self.far_field: FarField = far_field(far, c.shape[0])
         if not (np.isfinite(quad_tol) and 0 < quad_tol < 1):
             raise ValueError(f"quad_tol = {quad_tol!r} must be a number in (0, 1), e.g. 1e-10 "
                              "(accuracy of the quadrature between spheres)")
@@ -97,10 +97,7 @@ class BimSetup:
         if isinstance(near_upsample, bool) or not (np.isfinite(up) and up >= 1):
             raise ValueError(f"near_upsample = {near_upsample!r} must be a number >= 1 (order of "
                              "the near-field target grid in units of p; 1 = sample at the nodes)")
-        if far == "fmm":
-            from .fmm import check_fmm
-            check_fmm()
-        self.quad_tol, self.far, self.near_upsample = float(quad_tol), far, up
+        self.quad_tol, self.near_upsample = float(quad_tol), up
         self.near_block_mb = float(near_block_mb)
         self.centers, self.radii, self.M = c, r, c.shape[0]
         self._one_sphere()
@@ -108,8 +105,13 @@ class BimSetup:
         near_grid = sphere_grid(q_near)
         near_proj = None if q_near == self.p else projection_matrix(self.p, q_near)
         self.plan = PairPlan(c, r, Grids(self.p, self.grid, near_grid, near_proj, self.basis),
-                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb,
-                             pair_blocks=pair_blocks)
+                             quad_tol=self.quad_tol, far=self.far_field,
+                             near_block_mb=self.near_block_mb, pair_blocks=pair_blocks)
+
+    @property
+    def far(self) -> str:
+        """The far-field engine used, ``"direct"`` or ``"fmm"`` (:attr:`far_field`)."""
+        return self.far_field.name
 
     def _one_sphere(self) -> None:
         """The grid, the one-sphere operators and the target points of every sphere."""
@@ -214,8 +216,9 @@ class BimSetup:
 
     def _direct_sums(self, s: np.ndarray, coef: np.ndarray, rung: int,
                      trac: np.ndarray) -> None:
-        """Adds the direct quadrature between spheres (and the FMM far field) to ``trac``."""
-        M, N, plan = self.M, self.N, self.plan
+        """Adds the direct quadrature between spheres and the far field's own sum
+        (:meth:`.farfield.FarField.add_forward`) to ``trac``."""
+        N, plan = self.N, self.plan
         f = self._source_forces(s, coef)
         ptr, start, stop = plan.dir_ranges[min(rung, len(plan.dir_ranges) - 1)]
         if stop.size:
@@ -224,17 +227,7 @@ class BimSetup:
                   else direct_traction_ranges_serial)
             fn(self.tgt_pts, self.tgt_nrm, self.tgt_sphere,
                ptr, start, stop, *plan.src_xyz, *f, trac, False)
-        if self.far == "fmm":
-            from .fmm import fmm_traction
-            b0 = plan.lvl_base[plan.native]
-            trac += fmm_traction(self.tgt_pts, self.tgt_nrm,
-                                 np.stack([x[b0:b0 + M * N] for x in f], axis=1),
-                                 self.quad_tol)
-            ptr, start, stop = plan.fmm_sub
-            sub = np.zeros((M * N, 3))
-            direct_traction_skip(self.tgt_pts, self.tgt_nrm, self.tgt_sphere,
-                                 ptr, start, stop, *plan.src_xyz, *f, sub, True)
-            trac -= sub
+        self.far_field.add_forward(self, f, trac)
 
     def _source_forces(self, s: np.ndarray, coef: np.ndarray) -> list[np.ndarray]:
         """Point forces (density times weight) at every source level, as three arrays;
