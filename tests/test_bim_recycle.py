@@ -284,7 +284,7 @@ def test_recycled_products_agree_with_the_three_pass_projections(monkeypatch):
     u_new = [new @ f for f in ft] + [new.rmatvec(f) for f in ft]
     monkeypatch.setattr(bim_solves, "RecycledGCR", _ThreePassGCR)
     old = BimMobility(c, 1.0, p=4, eps_gmres=1e-8)
-    assert isinstance(old._recycler, _ThreePassGCR)
+    assert isinstance(old.solves.forward_space, _ThreePassGCR)
     u_old = [old @ f for f in ft] + [old.rmatvec(f) for f in ft]
     assert new.gmres_iterations == old.gmres_iterations
     assert new.adjoint_iterations == old.adjoint_iterations

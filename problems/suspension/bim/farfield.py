@@ -20,7 +20,7 @@ sums after the shared direct sums.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -28,14 +28,24 @@ from .fmm import check_fmm, fmm_traction, fmm_traction_adjoint, resolve_far
 from .kernels import direct_traction_skip
 from .kernels_adjoint import direct_traction_adjoint_skip
 
-if TYPE_CHECKING:
-    from .setup import BimSetup
-
-__all__ = ["FarField", "DirectSums", "FmmSums", "far_field", "group_ranges"]
+__all__ = ["FarField", "DirectSums", "FmmSums", "far_field", "group_ranges", "SumsSetup"]
 
 Ranges = tuple[np.ndarray, np.ndarray, np.ndarray]
 """Per-target source ranges ``(ptr, start, stop)``: target sphere i sums the source points
 ``start[k]:stop[k]`` for k in ``ptr[i]:ptr[i+1]``."""
+
+
+class SumsSetup(Protocol):
+    """What the sums read of the set-up (:class:`.setup.BimSetup`, which imports this
+    module): the pair plan, the sizes, the target points and the quadrature tolerance."""
+
+    plan: Any
+    M: int
+    N: int
+    tgt_pts: np.ndarray
+    tgt_nrm: np.ndarray
+    tgt_sphere: np.ndarray
+    quad_tol: float
 
 
 def group_ranges(ptr: np.ndarray, start: np.ndarray, stop: np.ndarray, n_per: int) -> dict:
@@ -81,11 +91,11 @@ class FarField:
         the pairs whose level ``keep`` accepts."""
         return [ranges(lv, lambda x: x >= 0) for lv in ladder]
 
-    def add_forward(self, setup: BimSetup, forces: list[np.ndarray], trac: np.ndarray) -> None:
+    def add_forward(self, setup: SumsSetup, forces: list[np.ndarray], trac: np.ndarray) -> None:
         """Adds this strategy's sum to the traction ``trac`` (M N, 3) of the point forces
         ``forces`` (three arrays over every source level), after the direct sums."""
 
-    def add_transpose(self, setup: BimSetup, tb: np.ndarray, tgt: tuple, f_bar: list) -> None:
+    def add_transpose(self, setup: SumsSetup, tb: np.ndarray, tgt: tuple, f_bar: list) -> None:
         """Transpose of :meth:`add_forward`: adds to the adjoint point forces ``f_bar`` those
         of the adjoint tractions ``tb`` (M N, 3) at the target points and normals ``tgt``
         (six contiguous coordinate arrays)."""
@@ -136,7 +146,7 @@ class FmmSums(FarField):
         assert self.removed is not None, "the pair plan sets the ranges (BimSetup builds it)"
         return self.removed
 
-    def add_forward(self, setup: BimSetup, forces: list[np.ndarray], trac: np.ndarray) -> None:
+    def add_forward(self, setup: SumsSetup, forces: list[np.ndarray], trac: np.ndarray) -> None:
         plan, M, N = setup.plan, setup.M, setup.N
         b0 = plan.lvl_base[plan.native]
         trac += fmm_traction(setup.tgt_pts, setup.tgt_nrm,
@@ -148,7 +158,7 @@ class FmmSums(FarField):
                              ptr, start, stop, *plan.src_xyz, *forces, sub, True)
         trac -= sub
 
-    def add_transpose(self, setup: BimSetup, tb: np.ndarray, tgt: tuple, f_bar: list) -> None:
+    def add_transpose(self, setup: SumsSetup, tb: np.ndarray, tgt: tuple, f_bar: list) -> None:
         plan, M, N = setup.plan, setup.M, setup.N
         if self._removed_by_source is None:
             self._removed_by_source = group_ranges(*self._removed(), N)

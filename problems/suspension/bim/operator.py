@@ -52,8 +52,8 @@ GMRES is relaxed (inexact Krylov): once the residual estimate has dropped to
 ``10^-k``, products use the split for ``quad_tol * 10^k`` (at most 1e-4),
 because later Krylov directions enter the solution with weights of the size of
 the residual; residuals at restarts and the reported final residual use full
-accuracy.  GMRES is scipy's, driven one restart cycle at a time so that it knows the
-rung of every product (:func:`.gmres.relaxed_gmres`).  Dense per-sphere products run
+accuracy.  GMRES runs one restart cycle at a time so that it knows the rung of every
+product (:func:`.gmres.relaxed_gmres`).  Dense per-sphere products run
 in compiled loops and scipy's vector work with BLAS limited to one thread
 (threadpoolctl): threaded BLAS would compete with the compiled parallel kernels on few
 cores (docs/mobility.md has the measured slow-down).
@@ -73,6 +73,8 @@ ground truth near contact, are measured in docs/mobility.md.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
@@ -102,7 +104,12 @@ def _setup_number(name: str, doc: str) -> property:
     return property(lambda self: getattr(self.setup, name), doc=doc)
 
 
-class BimMobility(KrylovSolves, LinearOperator):
+def _solves_number(name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is its solves' ``name``."""
+    return property(lambda self: getattr(self.solves, name), doc=doc)
+
+
+class BimMobility(LinearOperator):
     """Mobility of M rigid spheres by the traction boundary integral equation.
 
     Input per sphere ``(Fx, Fy, Fz, Tx, Ty, Tz)``, output
@@ -207,13 +214,47 @@ class BimMobility(KrylovSolves, LinearOperator):
             raise ValueError(f"on_failure = {on_failure!r}; use 'warn' or 'raise'")
         super().__init__(dtype=np.float64, shape=(6 * setup.M, 6 * setup.M))
         self.setup, self.near = setup, near
-        self.eps_gmres = float(eps_gmres)
-        self._relaxed: float | None = None     # a looser tolerance asked by at_accuracy
-        self.on_failure, self.maxiter = on_failure, int(maxiter)
-        self.recycle = max(int(recycle), 0)
-        self.krylov = krylov
         self._pieces = pieces
-        self._fresh_solvers()
+        self.solves = KrylovSolves(self, unknowns=setup.unknowns, eps_gmres=eps_gmres,
+                                   maxiter=maxiter, on_failure=on_failure, recycle=recycle,
+                                   krylov=krylov, label=f"M = {setup.M}, p = {setup.p}")
+
+    # ---- the solves' settings, records and contexts (:class:`.solves.KrylovSolves`) ---------
+    eps_gmres = _solves_number("eps_gmres", "Relative residual tolerance of GMRES.")
+    maxiter = _solves_number("maxiter", "Maximum total number of GMRES iterations per product.")
+    on_failure = _solves_number("on_failure", "What a solve that misses ``eps_gmres`` does: "
+                                "``\"warn\"`` or ``\"raise\"``.")
+    recycle = _solves_number("recycle", "Krylov directions kept per equation (0: none).")
+    krylov = _solves_number("krylov", "The memory budget of the kept directions.")
+    solve_tol = _solves_number("solve_tol", "The tolerance the next solve stops at "
+                               "(:attr:`.solves.KrylovSolves.solve_tol`).")
+    gmres_iterations = _solves_number("gmres_iterations", "Products of every forward solve.")
+    residuals = _solves_number("residuals", "Final relative residual of every forward solve.")
+    adjoint_iterations = _solves_number("adjoint_iterations",
+                                        "Products of every transposed solve.")
+    adjoint_residuals = _solves_number("adjoint_residuals",
+                                       "Final relative residual of every transposed solve.")
+
+    def cold_products(self) -> contextlib.AbstractContextManager[None]:
+        """:meth:`.solves.KrylovSolves.cold_products`: products made inside start from
+        empty recycled spaces (for timing a product at its first-product cost)."""
+        return self.solves.cold_products(self)
+
+    def at_accuracy(self, rtol: float) -> contextlib.AbstractContextManager[None]:
+        """:meth:`.solves.KrylovSolves.at_accuracy`: products made inside stop their solves
+        at relative residual ``max(rtol, eps_gmres)``.
+
+        Raises
+        ------
+        ValueError
+            If ``rtol`` is not in (0, 1).
+        """
+        return self.solves.at_accuracy(rtol)
+
+    def work_counts(self) -> dict[str, int]:
+        """:meth:`.solves.KrylovSolves.work_counts`: inner applications made so far (the
+        ``work`` hook of the counted operator)."""
+        return self.solves.work_counts()
 
     # ---- what the set-up shows --------------------------------------------------------------
     M = _setup_number("M", "Number of spheres.")
@@ -261,7 +302,8 @@ class BimMobility(KrylovSolves, LinearOperator):
     @property
     def recycled_directions(self) -> int:
         """Krylov directions kept for the forward equation (0 without recycling)."""
-        return 0 if self._recycler is None else self._recycler.size
+        space = self.solves.forward_space
+        return 0 if space is None else space.size
 
     # ---- twins ----------------------------------------------------------------------------------
     def at_tolerance(self, eps_gmres: float) -> BimMobility:
@@ -349,13 +391,14 @@ class BimMobility(KrylovSolves, LinearOperator):
         records = (self.gmres_iterations, self.residuals)
         b = self.rhs(ft)
         if float(np.linalg.norm(b)) == 0.0:
-            self._record("BIM GMRES", 0, 0.0, records)
+            self.solves.record("BIM GMRES", 0, 0.0, records)
             return np.zeros_like(b)
-        if self._recycler is not None:
-            return self._recycled_solve("BIM GMRES", self._recycler, b, records, x0=guess)
+        space = self.solves.forward_space
+        if space is not None:
+            return self.solves.recycled_solve("BIM GMRES", space, b, records, x0=guess)
         y0 = (self.setup.unprecondition(self.precondition(b)) if guess is None
               else np.asarray(guess, dtype=float))
-        return self._solve("BIM GMRES", self.apply_preconditioned, b, y0,
+        return self.solves.solve("BIM GMRES", self.apply_preconditioned, b, y0,
                            len(self.plan.dir_ranges), records)
 
     @on_one_blas_thread
@@ -385,13 +428,14 @@ class BimMobility(KrylovSolves, LinearOperator):
         records = (self.adjoint_iterations, self.adjoint_residuals)
         z = np.asarray(z, dtype=float).reshape(-1)
         if float(np.linalg.norm(z)) == 0.0:
-            self._record("BIM adjoint GMRES", 0, 0.0, records)
+            self.solves.record("BIM adjoint GMRES", 0, 0.0, records)
             return np.zeros_like(z)
-        if self._adj_recycler is not None:
-            return self._recycled_solve("BIM adjoint GMRES", self._adj_recycler, z, records)
+        space = self.solves.adjoint_space
+        if space is not None:
+            return self.solves.recycled_solve("BIM adjoint GMRES", space, z, records)
         pieces = self.adjoint_pieces
-        return self._solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z, z.copy(), 1,
-                           records)
+        return self.solves.solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z,
+                                 z.copy(), 1, records)
 
     # ---- products ----------------------------------------------------------------------------
     @on_one_blas_thread
@@ -439,12 +483,12 @@ class BimMobility(KrylovSolves, LinearOperator):
         """
         x = self._checked_loads(x, "forces/torques")
         y = self._checked_loads(y, "velocities passed to rmatvec")
-        if self._recycler is None or self._adj_recycler is None:
+        fwd, adj = self.solves.forward_space, self.solves.adjoint_space
+        if fwd is None or adj is None:
             return self._matvec(x), self._rmatvec(y)
         pieces = self.adjoint_pieces
         b = self.rhs(x)
         z = pieces.precondition(pieces.velocities(y))
-        fwd, adj = self._recycler, self._adj_recycler
 
         def apply_many(vs: list) -> list:
             if vs[0] is not None and vs[1] is not None:
@@ -455,9 +499,9 @@ class BimMobility(KrylovSolves, LinearOperator):
         before = (fwd.products, adj.products)
         (yf, _, rf), (wa, _, ra) = solve_together([(fwd, b), (adj, z)], apply_many,
                                                   self.solve_tol, self.maxiter)
-        self._record("BIM GMRES", fwd.products - before[0], rf,
+        self.solves.record("BIM GMRES", fwd.products - before[0], rf,
                      (self.gmres_iterations, self.residuals))
-        self._record("BIM adjoint GMRES", adj.products - before[1], ra,
+        self.solves.record("BIM adjoint GMRES", adj.products - before[1], ra,
                      (self.adjoint_iterations, self.adjoint_residuals))
         u = self.velocities(self.precondition(yf)).reshape(-1)
         return u, pieces.rhs(wa)
