@@ -84,7 +84,7 @@ def loads(M: int, count: int) -> list[np.ndarray]:
 def run_gmres(mod, mob, rhs: list[np.ndarray]) -> dict:
     """Relaxed GMRES (module ``mod``) on every right-hand side, as the operator solves."""
     prod = Timed(mob.apply_preconditioned)
-    rungs = len(mob.plan.dir_ranges)
+    rungs = len(mob.plan.quadrature.dir_ranges)
     ys, t = [], 0.0
     for b in rhs:
         y0 = mob.setup.unprecondition(mob.precondition(b))

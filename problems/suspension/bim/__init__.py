@@ -22,6 +22,8 @@ split lows)
   forward pieces without the near blocks.
 * :mod:`.pairs`: :class:`.pairs.PairPlan`: how each pair of spheres is evaluated (source
   grids per rung, expansion pairs, stored blocks, on-the-fly pairs) and the block builder.
+* :mod:`.pair_parts`: the plan's three parts: quadrature pairs, stored near blocks,
+  expansion pairs on the fly.
 * :mod:`.farfield`: the far field as one strategy object (:class:`.farfield.DirectSums`,
   :class:`.farfield.FmmSums`) owning its forward and transposed sums.
 

@@ -53,17 +53,19 @@ class AdjointPieces:
         self.analysis = np.ascontiguousarray(setup.basis.A)
         self.read = np.ascontiguousarray(setup.readout)
         self.proj = None if plan.near_proj is None else np.ascontiguousarray(plan.near_proj)
-        self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in plan.synth]
+        quad = plan.quadrature
+        self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in quad.synth]
         self.tgt = tuple(np.ascontiguousarray(a[:, k]) for a in (setup.tgt_pts, setup.tgt_nrm)
                          for k in range(3))
         Cm = coefficient_matrix(setup.p)                        # (3N, 5 (p+1)^2), D = s @ Cm
         self.coef = np.ascontiguousarray(np.vstack([Cm.T.real, -Cm.T.imag]))
         # direct sums at full accuracy (rung 0), grouped by source range
-        self.direct = group_ranges(*plan.dir_ranges[0], plan.N) if plan.n_src else None
+        self.direct = group_ranges(*quad.dir_ranges[0], plan.N) if quad.n_src else None
         # on-the-fly expansion pairs, by source sphere
         self.fly = [self._fly_group(ptr, idx, grid, projected) for ptr, idx, grid, projected in (
-            (plan.fly_ptr, plan.fly_idx, plan.near_grid, plan.near_proj is not None),
-            (plan.flyn_ptr, plan.flyn_idx, plan.grid, False)) if idx.size]
+            (plan.expansions.fly_ptr, plan.expansions.fly_idx, plan.near_grid,
+             plan.near_proj is not None),
+            (plan.expansions.flyn_ptr, plan.expansions.flyn_idx, plan.grid, False)) if idx.size]
 
     def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid: SphereGrid,
                    projected: bool) -> dict:
@@ -110,14 +112,14 @@ class AdjointPieces:
         """Transpose of the forward source forces: adds the adjoint point forces to the
         densities ``s_bar`` (native levels) and to the VSH coefficients ``coef_bar``."""
         plan = self.setup.plan
-        for L, q in enumerate(plan.levels):
-            J = plan.lvl_spheres[L]
+        for L, q in enumerate(plan.quadrature.levels):
+            J = plan.quadrature.lvl_spheres[L]
             if J.size == 0:
                 continue
-            b0 = plan.lvl_base[L]
+            b0 = plan.quadrature.lvl_base[L]
             nq = sphere_grid(q).size
             Fb = np.stack([f[b0:b0 + J.size * nq] for f in f_bar], axis=1).reshape(J.size, nq, 3)
-            Fb = (Fb * plan.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
+            Fb = (Fb * plan.quadrature.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
             S = self.synth[L]
             if S is None:
                 s_bar[J] += Fb
@@ -149,19 +151,19 @@ class AdjointPieces:
         coef_bar = None
         if M > 1:
             coef_bar = np.zeros((M, self.analysis.shape[0]))
-            if plan.fly_idx.size or plan.flyn_idx.size:
+            if plan.expansions.fly_idx.size or plan.expansions.flyn_idx.size:
                 out += self._near_on_the_fly(ob)
-            if plan.n_src:
+            if plan.quadrature.n_src:
                 tb = ob.reshape(M * N, 3)
                 tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
-                f_bar = [np.zeros(plan.n_src) for _ in range(3)]
+                f_bar = [np.zeros(plan.quadrature.n_src) for _ in range(3)]
                 g = self.direct
                 assert g is not None                    # set whenever there are sources
                 if g["start"].size:
                     fn = (direct_traction_adjoint if g["work"] > PARALLEL_WORK
                           else direct_traction_adjoint_serial)
                     fn(*self.tgt, *tbc, N, g["ptr"], g["tgt"], g["start"], g["stop"],
-                       *plan.src_xyz, *f_bar, False)
+                       *plan.quadrature.src_xyz, *f_bar, False)
                 op.far_field.add_transpose(op, tb, self.tgt, f_bar)
                 self._source_forces(f_bar, out, coef_bar)
         return out, coef_bar, ob

@@ -148,14 +148,14 @@ class FmmSums(FarField):
 
     def add_forward(self, setup: SumsSetup, forces: list[np.ndarray], trac: np.ndarray) -> None:
         plan, M, N = setup.plan, setup.M, setup.N
-        b0 = plan.lvl_base[plan.native]
+        b0 = plan.quadrature.lvl_base[plan.quadrature.native]
         trac += fmm_traction(setup.tgt_pts, setup.tgt_nrm,
                              np.stack([x[b0:b0 + M * N] for x in forces], axis=1),
                              setup.quad_tol)
         ptr, start, stop = self._removed()
         sub = np.zeros((M * N, 3))
         direct_traction_skip(setup.tgt_pts, setup.tgt_nrm, setup.tgt_sphere,
-                             ptr, start, stop, *plan.src_xyz, *forces, sub, True)
+                             ptr, start, stop, *plan.quadrature.src_xyz, *forces, sub, True)
         trac -= sub
 
     def add_transpose(self, setup: SumsSetup, tb: np.ndarray, tgt: tuple, f_bar: list) -> None:
@@ -163,12 +163,12 @@ class FmmSums(FarField):
         if self._removed_by_source is None:
             self._removed_by_source = group_ranges(*self._removed(), N)
         g = self._removed_by_source
-        b0 = plan.lvl_base[plan.native]
+        b0 = plan.quadrature.lvl_base[plan.quadrature.native]
         fb = fmm_traction_adjoint(setup.tgt_pts, setup.tgt_nrm, tb, setup.quad_tol)
-        sub = [np.zeros(plan.n_src) for _ in range(3)]
+        sub = [np.zeros(plan.quadrature.n_src) for _ in range(3)]
         tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
         direct_traction_adjoint_skip(*tgt, *tbc, N, g["ptr"], g["tgt"], g["start"],
-                                     g["stop"], *plan.src_xyz, *sub, True)
+                                     g["stop"], *plan.quadrature.src_xyz, *sub, True)
         for k in range(3):
             f_bar[k][b0:b0 + M * N] += fb[:, k]
             f_bar[k] -= sub[k]

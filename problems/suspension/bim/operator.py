@@ -94,9 +94,9 @@ from .sphere_vsh import default_quad_tol
 __all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning"]
 
 
-def _plan_number(name: str, doc: str) -> property:
-    """A read-only attribute of the operator that is the pair plan's ``name``."""
-    return property(lambda self: getattr(self.setup.plan, name), doc=doc)
+def _plan_number(part: str, name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is the pair plan's ``part.name``."""
+    return property(lambda self: getattr(getattr(self.setup.plan, part), name), doc=doc)
 
 
 def _setup_number(name: str, doc: str) -> property:
@@ -285,19 +285,20 @@ class BimMobility(LinearOperator):
         return self.setup.plan
 
     tolerance_ladder = _plan_number(
-        "tolerance_ladder", "Quadrature accuracies of the rungs of relaxed GMRES (first = "
-        "``quad_tol``).")
+        "quadrature", "tolerance_ladder", "Quadrature accuracies of the rungs of relaxed GMRES "
+        "(first = ``quad_tol``).")
     level_radii = _plan_number(
-        "level_radii", "Source-grid order -> scaled distance beyond which it is accurate to "
-        "``quad_tol``.")
+        "quadrature", "level_radii", "Source-grid order -> scaled distance beyond which it is "
+        "accurate to ``quad_tol``.")
     pairs_per_level = _plan_number(
-        "pairs_per_level", "Source-grid order -> ordered pairs summed directly on it at full "
-        "accuracy.")
-    n_far_pairs = _plan_number("n_far_pairs", "Ordered pairs handled by direct quadrature "
-                               "(not blocked).")
-    n_near_pairs = _plan_number("n_near_pairs", "Ordered pairs too close for any source grid "
-                                "(expansions).")
-    n_block_pairs = _plan_number("n_block_pairs", "Ordered pairs whose dense block is stored.")
+        "quadrature", "pairs_per_level", "Source-grid order -> ordered pairs summed directly on "
+        "it at full accuracy.")
+    n_far_pairs = _plan_number("quadrature", "n_far_pairs", "Ordered pairs handled by direct "
+                               "quadrature (not blocked).")
+    n_near_pairs = _plan_number("expansions", "n_near_pairs", "Ordered pairs too close for any "
+                                "source grid (expansions).")
+    n_block_pairs = _plan_number("near", "n_block_pairs",
+                                 "Ordered pairs whose dense block is stored.")
 
     @property
     def recycled_directions(self) -> int:
@@ -341,7 +342,7 @@ class BimMobility(LinearOperator):
 
     def apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
         """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities, with the
-        quadrature between spheres accurate to ``plan.tolerance_ladder[rung]``."""
+        quadrature between spheres accurate to ``plan.quadrature.tolerance_ladder[rung]``."""
         out, coef = self.setup.apply_unblocked(sigma, rung)
         if coef is not None:
             out += self.near.apply(coef)
@@ -399,7 +400,7 @@ class BimMobility(LinearOperator):
         y0 = (self.setup.unprecondition(self.precondition(b)) if guess is None
               else np.asarray(guess, dtype=float))
         return self.solves.solve("BIM GMRES", self.apply_preconditioned, b, y0,
-                           len(self.plan.dir_ranges), records)
+                           len(self.plan.quadrature.dir_ranges), records)
 
     @on_one_blas_thread
     def solve_loads(self, ft: np.ndarray, guess: np.ndarray | None = None

@@ -201,7 +201,7 @@ class SplitBlocks:
         self.M, self.N = plan.M, plan.N
         self.far_degree, self.near_gap, self.rank_tol = int(far_degree), near_gap, rank_tol
         basis = plan.basis
-        tgt, src = plan.block_tgt, plan.block_src
+        tgt, src = plan.near.block_tgt, plan.near.block_src
         c, r = plan.centers, plan.radii
         dist = np.linalg.norm(c[tgt] - c[src], axis=1) / r[src]      # in source radii
         reach = (r[tgt] + r[src]) / r[src] + near_gap                # R0 of each pair
@@ -215,7 +215,7 @@ class SplitBlocks:
         else:
             length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
                                for q in degree], dtype=np.int64)
-            factors = _factor(plan.blocks, length, rank_tol)
+            factors = _factor(plan.near.blocks, length, rank_tol)
             self.groups = [_group(None, factors, np.arange(tgt.size), plan, basis.degree.size)]
             self.n_factored_blocks = int(tgt.size)
             self.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
@@ -234,7 +234,7 @@ class SplitBlocks:
         never assembled)."""
         basis = plan.basis
         self.groups = []
-        stack = plan.blocks
+        stack = plan.near.blocks
         for q in np.unique(degree):
             idx = np.nonzero(degree == q)[0]                     # still sorted by target
             n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
@@ -250,11 +250,11 @@ class SplitBlocks:
             # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
             # the coefficients are ordered by degree)
             if q < 0:
-                blocks = np.ascontiguousarray(plan.blocks[idx])
+                blocks = np.ascontiguousarray(plan.near.blocks[idx])
             else:
                 blocks = np.empty((idx.size, n_q, n_q))
                 for k0 in range(0, idx.size, _CHUNK):
-                    blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
+                    blocks[k0:k0 + _CHUNK] = plan.near.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
             self.groups.append(_group(blocks, None, idx, plan, n_q))
         self.n_factored_blocks, self.mean_rank = 0, 0.0
         self.block_sizes = self.block_ranks = None
@@ -367,12 +367,12 @@ def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
     on the first ``n_coef`` coefficients (their synthesis: the leading rows of the plan's
     ``block_synth``, a view when they are all of them)."""
     M = plan.M
-    t, s = plan.block_tgt[idx], np.ascontiguousarray(plan.block_src[idx])
+    t, s = plan.near.block_tgt[idx], np.ascontiguousarray(plan.near.block_src[idx])
     ptr = np.searchsorted(t, np.arange(M + 1)).astype(np.int64)
     order = np.argsort(s, kind="stable").astype(np.int64)            # for the transpose
     src_ptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int64)
-    synth = np.ascontiguousarray(plan.block_synth[:n_coef])
-    synth_T = np.ascontiguousarray(plan.block_synth_T[:, :n_coef])
+    synth = np.ascontiguousarray(plan.near.block_synth[:n_coef])
+    synth_T = np.ascontiguousarray(plan.near.block_synth_T[:, :n_coef])
     return _Group(blocks, factors, ptr, s, np.arange(n_coef), synth, synth_T,
                   np.arange(idx.size, dtype=np.int64), order, src_ptr, np.ascontiguousarray(t),
                   rotated)
