@@ -88,7 +88,7 @@ def near_costs(setup: BimSetup, repeat: int = 5) -> dict:
     plan = setup.plan
     near = StoredBlocks(plan)
     rng = np.random.default_rng(1)
-    coef = rng.standard_normal((plan.M, plan.block_synth.shape[0]))
+    coef = rng.standard_normal((plan.M, plan.near.block_synth.shape[0]))
     ob = rng.standard_normal((plan.M, 3 * plan.N))
     bar, out = np.zeros_like(coef), np.zeros_like(ob)
     calls = {"apply": lambda: near.apply(coef),
@@ -121,12 +121,12 @@ def one_configuration(m: int, p: int, pack: int, ref_p: int | None,
     for mode in ("direct", "table-all"):
         setups[mode], t = timed(BimSetup, c, r, pair_blocks=mode, **kw)
         plan = setups[mode].plan
-        blocked = list(zip(plan.block_tgt.tolist(), plan.block_src.tolist()))
+        blocked = list(zip(plan.near.block_tgt.tolist(), plan.near.block_src.tolist()))
         with one_blas_thread():
             _, t_b = timed(plan._block_values, blocked)
         out[mode] = {"setup": t, "blocks": t_b, "pairs": len(blocked),
                      **near_costs(setups[mode])}
-        out["table pairs"] = plan.n_table_blocks
+        out["table pairs"] = plan.near.n_table_blocks
     F = np.random.default_rng(0).standard_normal((6 * len(r), 3))
     U = {}
     for mode, setup in setups.items():

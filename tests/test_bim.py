@@ -14,6 +14,7 @@ from lcpbench.problems.suspension.bim import (
     BimMobility,
     bim_mobility,
 )
+from lcpbench.problems.suspension.bim.farfield import DirectSums, FmmSums
 from lcpbench.problems.suspension.bim.harmonics import unit_field
 from lcpbench.problems.suspension.bim.sphere_vsh import (
     expansion_coefficients,
@@ -292,7 +293,7 @@ def test_levels_and_blocks_agree_with_all_expansions():
     # node sampling (tests/test_bim_coaxial.py compares them)
     A = BimMobility(c, 1.0, p=6, eps_gmres=1e-8, near_block_mb=0.3, near_upsample=1,
                     pair_blocks="direct")
-    assert A.n_block_pairs > 0 and A.plan.fly_idx.size > 0 and A.n_far_pairs > 0
+    assert A.n_block_pairs > 0 and A.plan.expansions.fly_idx.size > 0 and A.n_far_pairs > 0
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= 2
     s = np.random.default_rng(0).standard_normal(A.M * 3 * A.N)
     s = (vsh_basis(6).B @ vsh_basis(6).A @ s.reshape(A.M, -1).T).T.reshape(-1)
@@ -316,6 +317,13 @@ def test_fmm_far_field_matches_direct():
     assert np.abs(uf - ua).max() <= 1e-8 * np.abs(ua).max()
     with pytest.raises(ValueError, match="far"):
         BimMobility(c, 1.0, p=4, far="tree")
+    # the strategies: the direct sums follow the tolerance ladder on coarse grids, the FMM
+    # is not relaxed and sums every native point (minus the pairs it must not include)
+    assert (A.setup.far, F.setup.far) == ("direct", "fmm")
+    assert isinstance(A.setup.far_field, DirectSums) and isinstance(F.setup.far_field, FmmSums)
+    assert len(A.tolerance_ladder) > 1 and len(F.tolerance_ladder) == 1
+    assert F.plan.quadrature.lvl_spheres[F.plan.quadrature.native].size == F.M
+    assert F.setup.far_field.removed is not None and F.setup.far_field.removed[2].size
 
 
 def test_relaxed_gmres_reaches_true_residual():
@@ -370,7 +378,7 @@ def test_projected_blocks_equal_on_the_fly_projection():
     # the direct build: its blocks are the on-the-fly projection stored
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, pair_blocks="direct")
     B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0, pair_blocks="direct")
-    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
+    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.expansions.fly_idx.size > 0
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
 
@@ -385,7 +393,7 @@ def test_blocks_in_coefficients_leave_node_sampled_products_unchanged():
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, pair_blocks="direct")
     B = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, near_upsample=1, near_block_mb=0,
                     pair_blocks="direct")
-    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.fly_idx.size > 0
+    assert A.n_block_pairs > 0 and B.n_block_pairs == 0 and B.plan.expansions.fly_idx.size > 0
     s = np.random.default_rng(6).standard_normal(A.M * 3 * A.N)
     nodal = np.abs(A.apply_bie(s) - B.apply_bie(s)).max() / np.abs(s).max()
     assert nodal > 1e-8                        # the blocks' nodal outputs do differ ...
@@ -405,7 +413,7 @@ def test_preconditioned_operator_drops_only_the_identity_self_part():
         A = BimMobility(c, 1.0, p=4, eps_gmres=1e-12, **kw)
         plan = A.plan
         assert (A.n_block_pairs == 20) == blocked
-        assert bool(plan.fly_idx.size or plan.flyn_idx.size or plan.n_src) != blocked
+        assert bool(plan.expansions.fly_idx.size or plan.expansions.flyn_idx.size or plan.quadrature.n_src) != blocked
         ref = A.apply_bie(A.precondition(y))
         got = A.apply_preconditioned(y)
         assert np.abs(got - ref).max() <= 1e-11 * np.abs(ref).max()

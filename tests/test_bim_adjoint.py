@@ -48,7 +48,7 @@ def _dot_error(lhs: float, rhs: float) -> float:
 
 def _check_structure(A: BimMobility, min_levels: int) -> None:
     assert A.n_block_pairs > 0, "no stored near blocks"
-    assert A.plan.fly_idx.size > 0, "no on-the-fly expansion pairs"
+    assert A.plan.expansions.fly_idx.size > 0, "no on-the-fly expansion pairs"
     assert sum(v > 0 for v in A.pairs_per_level.values()) >= min_levels, A.pairs_per_level
 
 

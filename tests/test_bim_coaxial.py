@@ -104,17 +104,17 @@ def test_setup_takes_equal_pairs_from_the_table_and_others_directly():
     table = BimSetup(c, r, pair_blocks="table", **kw).plan
     direct = BimSetup(c, r, pair_blocks="direct", **kw).plan
     fine = BimSetup(c, r, pair_blocks="direct", near_upsample=14.0, **kw).plan
-    assert np.array_equal(table.block_src, direct.block_src)
-    unequal = (table.block_src == 0) | (table.block_tgt == 0)
-    zone = np.array([table._projected(i, j) for i, j in zip(table.block_tgt, table.block_src)])
+    assert np.array_equal(table.near.block_src, direct.near.block_src)
+    unequal = (table.near.block_src == 0) | (table.near.block_tgt == 0)
+    zone = np.array([table._projected(i, j) for i, j in zip(table.near.block_tgt, table.near.block_src)])
     sel = zone & ~unequal
-    assert table.n_table_blocks == int(sel.sum()) > 0 and (~zone).any()
-    assert direct.n_table_blocks == 0
+    assert table.near.n_table_blocks == int(sel.sum()) > 0 and (~zone).any()
+    assert direct.near.n_table_blocks == 0
     # unequal and node-sampled pairs: the direct build itself
-    assert np.array_equal(table.blocks[~sel], direct.blocks[~sel])
+    assert np.array_equal(table.near.blocks[~sel], direct.near.blocks[~sel])
     # projected-zone pairs: the converged projection (the direct build on a fine grid)
-    num = np.linalg.norm(table.blocks[sel] - fine.blocks[sel], axis=(1, 2))
-    assert (num <= 1e-10 * np.linalg.norm(fine.blocks[sel], axis=(1, 2))).all()
+    num = np.linalg.norm(table.near.blocks[sel] - fine.near.blocks[sel], axis=(1, 2))
+    assert (num <= 1e-10 * np.linalg.norm(fine.near.blocks[sel], axis=(1, 2))).all()
 
 
 def test_table_all_takes_node_sampled_pairs_from_the_table():
@@ -122,15 +122,15 @@ def test_table_all_takes_node_sampled_pairs_from_the_table():
     p = 3
     c = packed(2)
     plan = BimSetup(c, 1.0, p=p, mu=1.0, quad_tol=1e-10, pair_blocks="table-all").plan
-    assert plan.n_table_blocks == plan.n_block_pairs
-    node = [k for k, (i, j) in enumerate(zip(plan.block_tgt, plan.block_src))
+    assert plan.near.n_table_blocks == plan.near.n_block_pairs
+    node = [k for k, (i, j) in enumerate(zip(plan.near.block_tgt, plan.near.block_src))
             if not plan._projected(i, j)]
     assert node
     b = vsh_basis(p)
     for k in node[:3]:
-        i, j = plan.block_tgt[k], plan.block_src[k]
+        i, j = plan.near.block_tgt[k], plan.near.block_src[k]
         want = b.A @ b.B @ _projected_block(c[i], c[j], 1.0, p, 40)
-        assert np.linalg.norm(plan.blocks[k] - want) <= 1e-10 * np.linalg.norm(want)
+        assert np.linalg.norm(plan.near.blocks[k] - want) <= 1e-10 * np.linalg.norm(want)
 
 
 def test_bad_pair_blocks_value():
@@ -144,7 +144,7 @@ def test_memory_budget_that_leaves_pairs_unblocked_warns_once():
                       ) as rec:
         plan = BimSetup(c, 1.0, p=3, mu=1.0, quad_tol=1e-8, near_block_mb=0.1).plan
     assert len([w for w in rec if "near_block_mb" in str(w.message)]) == 1
-    assert 0 < plan.n_block_pairs < plan.n_near_pairs + plan.n_block_pairs
+    assert 0 < plan.near.n_block_pairs < plan.expansions.n_near_pairs + plan.near.n_block_pairs
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         BimSetup(c, 1.0, p=3, mu=1.0, quad_tol=1e-8)            # every candidate fits
@@ -206,6 +206,6 @@ def test_mobility_with_table_blocks_matches_the_direct_build():
         op._assemble(setup, StoredBlocks(setup.plan), eps_gmres=1e-10, on_failure="raise",
                      maxiter=500, recycle=0, krylov=KrylovBudget(0))
         out[mode] = op @ ft
-    assert setup.plan.n_table_blocks > 0
+    assert setup.plan.near.n_table_blocks > 0
     diff = np.linalg.norm(out["table"] - out["direct"]) / np.linalg.norm(out["direct"])
     assert 1e-9 < diff < 1e-5

@@ -26,45 +26,45 @@ def plan():
 
 
 def _assembled(plan):
-    return np.asarray(plan.blocks[np.arange(plan.n_block_pairs)])
+    return np.asarray(plan.near.blocks[np.arange(plan.near.n_block_pairs)])
 
 
 def test_default_keeps_table_pairs_in_rotated_form(plan):
     assert plan.pair_blocks == "table-all"
-    assert isinstance(plan.blocks, PlanBlocks)
-    assert 0 < plan.n_table_blocks < plan.n_block_pairs
+    assert isinstance(plan.near.blocks, PlanBlocks)
+    assert 0 < plan.near.n_table_blocks < plan.near.n_block_pairs
     # a pair and its reverse share one row of coaxial entries (the block depends on the
     # distance alone); only their rotations differ
-    rot = plan.rotated
-    assert rot.D.shape[0] == plan.n_table_blocks
-    assert rot.vals.shape == (plan.n_table_blocks // 2, int(order_mask(5).sum()))
-    t, s = plan.block_tgt[plan.rot_pos], plan.block_src[plan.rot_pos]
+    rot = plan.near.rotated
+    assert rot.D.shape[0] == plan.near.n_table_blocks
+    assert rot.vals.shape == (plan.near.n_table_blocks // 2, int(order_mask(5).sum()))
+    t, s = plan.near.block_tgt[plan.near.rot_pos], plan.near.block_src[plan.near.rot_pos]
     where = {(a, b): k for k, (a, b) in enumerate(zip(t.tolist(), s.tolist()))}
     assert all(rot.vrow[k] == rot.vrow[where[(b, a)]] for (a, b), k in where.items())
     assert np.unique(rot.vrow).size == rot.vals.shape[0]
-    nv = plan.blocks.shape[1]
-    dense = plan.n_block_pairs - plan.n_table_blocks
+    nv = plan.near.blocks.shape[1]
+    dense = plan.near.n_block_pairs - plan.near.n_table_blocks
     # memory per pair: Wigner matrices + coaxial entries, far below an assembled block
-    assert plan.block_bytes == plan.rotated.nbytes + dense * nv * nv * 8
-    assert plan.rotated.nbytes < 0.3 * plan.n_table_blocks * nv * nv * 8
+    assert plan.near.block_bytes == plan.near.rotated.nbytes + dense * nv * nv * 8
+    assert plan.near.rotated.nbytes < 0.3 * plan.near.n_table_blocks * nv * nv * 8
 
 
 def test_lazy_blocks_index_like_an_array(plan):
     full = _assembled(plan)
-    k = int(plan.rot_pos[3])
-    assert np.array_equal(plan.blocks[k], full[k])
-    idx = np.array([int(plan.dense_pos[0]), k, 0])
-    assert np.array_equal(plan.blocks[idx, :10, :7], full[idx, :10, :7])
-    assert np.array_equal(plan.blocks[2:5], full[2:5])
+    k = int(plan.near.rot_pos[3])
+    assert np.array_equal(plan.near.blocks[k], full[k])
+    idx = np.array([int(plan.near.dense_pos[0]), k, 0])
+    assert np.array_equal(plan.near.blocks[idx, :10, :7], full[idx, :10, :7])
+    assert np.array_equal(plan.near.blocks[2:5], full[2:5])
     # the assembled rotated blocks are those of pair_blocks="table" where both apply
     ref = BimSetup(plan.centers, plan.radii, p=5, mu=1.0, quad_tol=1e-10,
                    pair_blocks="table").plan
-    assert np.array_equal(ref.block_tgt, plan.block_tgt)
-    zone = np.array([plan._projected(i, j) for i, j in zip(plan.block_tgt, plan.block_src)])
-    sel = zone & (plan.radii[plan.block_tgt] == plan.radii[plan.block_src])
+    assert np.array_equal(ref.near.block_tgt, plan.near.block_tgt)
+    zone = np.array([plan._projected(i, j) for i, j in zip(plan.near.block_tgt, plan.near.block_src)])
+    sel = zone & (plan.radii[plan.near.block_tgt] == plan.radii[plan.near.block_src])
     assert sel.sum() > 10
-    err = np.linalg.norm(full[sel] - ref.blocks[sel], axis=(1, 2))
-    assert (err <= 1e-12 * np.linalg.norm(ref.blocks[sel], axis=(1, 2))).all()
+    err = np.linalg.norm(full[sel] - ref.near.blocks[sel], axis=(1, 2))
+    assert (err <= 1e-12 * np.linalg.norm(ref.near.blocks[sel], axis=(1, 2))).all()
 
 
 def _reference_products(plan, coef, x):
@@ -72,8 +72,8 @@ def _reference_products(plan, coef, x):
     fwd = np.zeros_like(coef)
     tr = np.zeros_like(coef)
     for k in range(A.shape[0]):
-        fwd[plan.block_tgt[k]] += A[k] @ coef[plan.block_src[k]]
-        tr[plan.block_src[k]] += A[k].T @ x[plan.block_tgt[k]]
+        fwd[plan.near.block_tgt[k]] += A[k] @ coef[plan.near.block_src[k]]
+        tr[plan.near.block_src[k]] += A[k].T @ x[plan.near.block_tgt[k]]
     return fwd, tr
 
 
@@ -83,28 +83,28 @@ def _rel(a, b):
 
 def test_stored_blocks_products_match_the_assembled_blocks(plan):
     rng = np.random.default_rng(0)
-    nv = plan.blocks.shape[1]
+    nv = plan.near.blocks.shape[1]
     coef = rng.standard_normal((plan.M, nv))
     ob = rng.standard_normal((plan.M, 3 * plan.N))
-    x = ob @ plan.block_synth_T
+    x = ob @ plan.near.block_synth_T
     fwd, tr = _reference_products(plan, coef, x)
     near = StoredBlocks(plan)
-    assert _rel(near.apply(coef), fwd @ plan.block_synth) <= 1e-12
+    assert _rel(near.apply(coef), fwd @ plan.near.block_synth) <= 1e-12
     bar = np.zeros_like(coef)
     near.add_transpose(ob, bar)
     assert _rel(bar, tr) <= 1e-12
     bar2, out = np.zeros_like(coef), np.ones((plan.M, 3 * plan.N))
     near.apply_both(coef, ob, bar2, out)
-    assert _rel(out - 1.0, fwd @ plan.block_synth) <= 1e-12
+    assert _rel(out - 1.0, fwd @ plan.near.block_synth) <= 1e-12
     assert _rel(bar2, tr) <= 1e-12
-    assert near.nbytes == plan.block_bytes
+    assert near.nbytes == plan.near.block_bytes
 
 
 @pytest.mark.parametrize("parallel", [True, False])
 def test_rotated_kernels_serial_and_parallel(plan, parallel):
     """The compiled kernels on the rotated pairs alone, against their assembled blocks."""
-    rot, pos = plan.rotated, plan.rot_pos
-    tgt, src = plan.block_tgt[pos], plan.block_src[pos]
+    rot, pos = plan.near.rotated, plan.near.rot_pos
+    tgt, src = plan.near.block_tgt[pos], plan.near.block_src[pos]
     A = rot.assemble(np.arange(pos.size))
     rng = np.random.default_rng(1)
     nv = A.shape[1]
@@ -139,10 +139,10 @@ def test_budget_counts_blocks_in_rotated_form():
     with pytest.warns(RuntimeWarning, match="near_block_mb"):
         direct = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=mb,
                           pair_blocks="direct").plan
-    assert direct.n_block_pairs == 20
+    assert direct.near.n_block_pairs == 20
     rotated = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=mb).plan
-    assert rotated.n_block_pairs > 40
-    assert rotated.block_bytes <= mb * 2 ** 20
+    assert rotated.near.n_block_pairs > 40
+    assert rotated.near.block_bytes <= mb * 2 ** 20
 
 
 def test_pairs_beyond_the_budget_are_the_same_table_blocks_rotated_on_the_fly():
@@ -152,13 +152,13 @@ def test_pairs_beyond_the_budget_are_the_same_table_blocks_rotated_on_the_fly():
     full = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10).plan
     with pytest.warns(RuntimeWarning, match="near_block_mb"):
         small = BimSetup(c, 1.0, p=5, mu=1.0, quad_tol=1e-10, near_block_mb=0.2).plan
-    assert 0 < small.n_stored_blocks < small.n_block_pairs == full.n_block_pairs
-    assert small.fly_idx.size == 0 and small.flyn_idx.size == 0
-    assert small.fly_pairs.rho.size == small.n_block_pairs - small.n_stored_blocks
-    want = full.blocks[:, :9, :9]          # equal to rounding: the BLAS sums each width
-    assert np.abs(small.blocks[:, :9, :9] - want).max() <= 1e-14 * np.abs(want).max()
+    assert 0 < small.near.n_stored_blocks < small.near.n_block_pairs == full.near.n_block_pairs
+    assert small.expansions.fly_idx.size == 0 and small.expansions.flyn_idx.size == 0
+    assert small.near.fly_pairs.rho.size == small.near.n_block_pairs - small.near.n_stored_blocks
+    want = full.near.blocks[:, :9, :9]          # equal to rounding: the BLAS sums each width
+    assert np.abs(small.near.blocks[:, :9, :9] - want).max() <= 1e-14 * np.abs(want).max()
     rng = np.random.default_rng(2)
-    coef = rng.standard_normal((full.M, full.blocks.shape[1]))
+    coef = rng.standard_normal((full.M, full.near.blocks.shape[1]))
     ob = rng.standard_normal((full.M, 3 * full.N))
     a, b = StoredBlocks(full), StoredBlocks(small)
     assert _rel(b.apply(coef), a.apply(coef)) <= 1e-13
@@ -179,7 +179,7 @@ def test_mobility_with_no_block_budget_equals_the_stored_table_blocks():
     A = BimMobility(c, 1.0, p=4, eps_gmres=1e-11)
     with pytest.warns(RuntimeWarning, match="near_block_mb"):
         B = BimMobility(c, 1.0, p=4, eps_gmres=1e-11, near_block_mb=0)
-    assert B.plan.n_stored_blocks == 0 and B.plan.n_block_pairs == A.plan.n_block_pairs
+    assert B.plan.near.n_stored_blocks == 0 and B.plan.near.n_block_pairs == A.plan.near.n_block_pairs
     ua, ub = A @ ft, B @ ft
     assert np.abs(ua - ub).max() <= 1e-9 * np.abs(ua).max()
 
@@ -221,8 +221,9 @@ def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree(plan):
     def assembled_copy(plan):
         """The plan with every block assembled (the same values, stored dense)."""
         out = copy.copy(plan)
-        out.blocks = plan.blocks[np.arange(len(plan.blocks))]
-        out.rotated = out.fly_pairs = None
+        out.near = copy.copy(plan.near)
+        out.near.blocks = plan.near.blocks[np.arange(len(plan.near.blocks))]
+        out.near.rotated = out.near.fly_pairs = None
         return out
 
     c = _packed(2)
@@ -235,7 +236,7 @@ def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree(plan):
     rng = np.random.default_rng(5)
     for plan, assembled, dense in ((full, full_ref, False), (small, full_ref, False),
                                    (mixed, assembled_copy(mixed), True)):
-        coef = rng.standard_normal((plan.M, plan.blocks.shape[1]))
+        coef = rng.standard_normal((plan.M, plan.near.blocks.shape[1]))
         ob = rng.standard_normal((plan.M, 3 * plan.N))
         ref = SplitBlocks(assembled, **kw)
         assert all(g.rotated is None for g in ref.groups)
@@ -248,12 +249,12 @@ def test_split_low_keeps_table_pairs_in_rotated_form_truncated_by_degree(plan):
         assert len(rot) >= 2 and (len(split.groups) > len(rot)) == dense
         assert {g.sel.size for g in rot} == {g.sel.size for g in ref.groups}
         for g in rot:
-            k = np.nonzero(np.isin(plan.block_tgt * plan.M + plan.block_src,
+            k = np.nonzero(np.isin(plan.near.block_tgt * plan.M + plan.near.block_src,
                                    g.tgt * plan.M + g.src))[0]
             n = g.sel.size
             blocks = g.rotated.assemble(np.arange(k.size))
             assert blocks.shape == (k.size, n, n)
-            assert _rel(blocks, assembled.blocks[k, :n, :n]) <= 1e-13
+            assert _rel(blocks, assembled.near.blocks[k, :n, :n]) <= 1e-13
         assert split.n_truncated_pairs == ref.n_truncated_pairs > 0
         # fewer multiply-adds than the same blocks truncated assembled
         assert sum(g.work for g in split.groups) < sum(g.work for g in ref.groups)

@@ -27,9 +27,9 @@ def _rel(a, b):
 
 def _reference(plan, coef, x):
     """Forward and transposed sums of the table pairs' assembled blocks."""
-    pos = plan.rot_pos
-    tgt, src = plan.block_tgt[pos], plan.block_src[pos]
-    A = plan.rotated.assemble(np.arange(pos.size))
+    pos = plan.near.rot_pos
+    tgt, src = plan.near.block_tgt[pos], plan.near.block_src[pos]
+    A = plan.near.rotated.assemble(np.arange(pos.size))
     fwd, tr = np.zeros_like(coef), np.zeros_like(coef)
     for k in range(pos.size):
         fwd[tgt[k]] += A[k] @ coef[src[k]]
@@ -38,8 +38,8 @@ def _reference(plan, coef, x):
 
 
 def test_the_plan_holds_every_table_pair_in_the_pair_frame(plan):
-    frame = plan.pair_frame
-    assert frame is not None and frame.n_pairs == plan.rot_pos.size
+    frame = plan.near.pair_frame
+    assert frame is not None and frame.n_pairs == plan.near.rot_pos.size
     held = frame.tgt[frame.tgt >= 0]
     assert held.size == frame.n_pairs
     # a pair and its reverse share an item: every item is full (equal radii, both kept)
@@ -60,7 +60,7 @@ def test_coaxial_support_drops_only_structural_zeros():
 
 @pytest.mark.parametrize("parallel", [True, False])
 def test_products_agree_with_the_assembled_blocks(plan, parallel):
-    frame = plan.pair_frame
+    frame = plan.near.pair_frame
     rng = np.random.default_rng(3)
     coef, x = rng.standard_normal((2, plan.M, frame.nv))
     fwd, tr = _reference(plan, coef, x)
@@ -78,14 +78,14 @@ def test_products_agree_with_the_assembled_blocks(plan, parallel):
 def test_a_pair_without_its_reverse_is_applied_alone(plan):
     """Items with one direction only (the reverse not among the pairs) give that pair's
     block and nothing for the missing one."""
-    pos = plan.rot_pos
-    tgt, src = plan.block_tgt[pos], plan.block_src[pos]
+    pos = plan.near.rot_pos
+    tgt, src = plan.near.block_tgt[pos], plan.near.block_src[pos]
     one = np.nonzero(tgt < src)[0][:5]
     u = plan.centers[tgt[one]] - plan.centers[src[one]]
     u /= np.linalg.norm(u, axis=1)[:, None]
     frame = PairFrame.from_table(u, plan._rho(tgt[one], src[one]), tgt[one], src[one],
                                  coaxial_table(5, table_range(5)), plan._output_map)
-    A = plan.rotated.assemble(one)
+    A = plan.near.rotated.assemble(one)
     coef = np.random.default_rng(4).standard_normal((plan.M, frame.nv))
     ref = np.zeros_like(coef)
     for k, kk in enumerate(one):
@@ -101,8 +101,8 @@ def test_the_operator_uses_the_pair_frame_and_matches_the_rotated_kernel(plan):
     from lcpbench.problems.suspension.bim.blocks import StoredBlocks
 
     near = StoredBlocks(plan)
-    assert near.frame is plan.pair_frame
-    coef = np.random.default_rng(5).standard_normal((plan.M, plan.pair_frame.nv))
+    assert near.frame is plan.near.pair_frame
+    coef = np.random.default_rng(5).standard_normal((plan.M, plan.near.pair_frame.nv))
     got = near.apply(coef)
     old = StoredBlocks(plan)
     old.frame = None

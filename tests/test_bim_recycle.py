@@ -5,7 +5,14 @@ import numpy as np
 import pytest
 
 from lcpbench.problems.suspension.bim import BimMobility
-from lcpbench.problems.suspension.bim.recycle import RecycledGCR, solve_together
+from lcpbench.problems.suspension.bim import solves as bim_solves
+from lcpbench.problems.suspension.bim.recycle import (
+    _BREAKDOWN,
+    _MAX_CHECKS,
+    _ROUNDING,
+    RecycledGCR,
+    solve_together,
+)
 from lcpbench.problems.suspension.problem import build_contact_problem
 
 
@@ -175,3 +182,112 @@ def test_measure_cost_times_every_repeat_cold_on_a_new_vector():
     assert (vs > 0).all()
     assert len({tuple(np.round(v, 12)) for v in vs}) == 7          # all different
     assert op.count == 0                                             # uncounted
+
+
+class _ThreePassGCR(RecycledGCR):
+    """The recycled solve as it was before the fused projections (the oracle below): each
+    projection three passes (``h = C v``, ``U' h``, ``C' h``), the directions updated after
+    each Gram-Schmidt pass."""
+
+    def _project(self, v):
+        k = self._filled
+        if k == 0:
+            return np.zeros(self.n), np.zeros(self.n)
+        h = self._C[:k] @ v
+        return h @ self._U[:k], h @ self._C[:k]
+
+    def iterate(self, b: np.ndarray, rtol: float, maxiter: int,
+                x0: np.ndarray | None = None):
+        """The solve of :meth:`solve` as a generator: it yields every vector whose product
+        it needs and is sent the product back; its return value is ``(y, iterations,
+        residual)``.  :func:`solve_together` drives several at once."""
+        b = np.asarray(b, dtype=np.float64).reshape(-1)
+        nb = float(np.linalg.norm(b))
+        if nb == 0.0:
+            return np.zeros(self.n), 0, 0.0
+        keep = self.capacity > 0
+        self._reserve(self.capacity if keep else max(int(maxiter), 1))
+        y, r = np.zeros(self.n), b.copy()
+        if x0 is not None and np.any(x0):
+            guess = np.array(x0, dtype=np.float64).reshape(-1)
+            r0 = b - self._image((yield guess))
+            if float(np.linalg.norm(r0)) < nb:          # the guess helps: start from it
+                y, r = guess, r0
+        k = self._filled
+        h = self._C[:k] @ r
+        if k:
+            y += h @ self._U[:k]
+            r -= h @ self._C[:k]
+        # sum of |coefficients| of y in the directions: bounds the rounding drift
+        weight = float(np.abs(h).sum())
+        its = checks = 0
+        stalled = force = False       # force: after a refuted check, one new direction
+        res = 1.0
+        try:
+            while True:
+                while ((force or float(np.linalg.norm(r)) > rtol * nb) and its < maxiter
+                       and not stalled):
+                    force = False
+                    u = r / float(np.linalg.norm(r))
+                    c = self._image((yield u))
+                    its += 1
+                    nc0 = float(np.linalg.norm(c))
+                    du, dc = self._project(c)
+                    u -= du
+                    c -= dc
+                    nc = float(np.linalg.norm(c))
+                    if nc < nc0 / np.sqrt(2.0):              # twice is enough (Kahan)
+                        du, dc = self._project(c)
+                        u -= du
+                        c -= dc
+                        nc = float(np.linalg.norm(c))
+                    if not nc > _BREAKDOWN * nc0:
+                        stalled = True
+                        break
+                    c /= nc
+                    u /= nc
+                    alpha = float(c @ r)
+                    y += alpha * u
+                    r -= alpha * c
+                    weight += abs(alpha)
+                    self._add(u, c)
+                res = float(np.linalg.norm(r)) / nb
+                drift = _ROUNDING * self._filled * weight / nb
+                if res <= rtol and drift <= 0.1 * rtol:
+                    break             # the recurrence is the true residual to << rtol
+                # measure the truth (the recurrence may have drifted, or the solve stopped)
+                r = b - self._image((yield y))
+                res = float(np.linalg.norm(r)) / nb
+                checks += 1
+                if res <= rtol or its >= maxiter or stalled or checks >= _MAX_CHECKS:
+                    break
+                force = True
+                # fold the true residual back onto every direction (no product), go on
+                du, dc = self._project(r)
+                y += du
+                r -= dc
+        finally:
+            if not keep:
+                self.clear()
+        return y, its, res
+
+
+def test_recycled_products_agree_with_the_three_pass_projections(monkeypatch):
+    """A row of forward and transposed products of one operator on a packed 2x2x2 lattice
+    (each recycling the directions of the ones before), with the fused projections and with
+    the earlier three-pass ones: the same products made and the same results to 1e-12."""
+    rng = np.random.default_rng(8)
+    grid = np.array([[i, j, k] for i in range(2) for j in range(2) for k in range(2)], float)
+    c = 2.2 * grid + 0.05 * rng.uniform(-1.0, 1.0, (8, 3))
+    ft = rng.standard_normal((4, 48))
+    new = BimMobility(c, 1.0, p=4, eps_gmres=1e-8)
+    u_new = [new @ f for f in ft] + [new.rmatvec(f) for f in ft]
+    monkeypatch.setattr(bim_solves, "RecycledGCR", _ThreePassGCR)
+    old = BimMobility(c, 1.0, p=4, eps_gmres=1e-8)
+    assert isinstance(old.solves.forward_space, _ThreePassGCR)
+    u_old = [old @ f for f in ft] + [old.rmatvec(f) for f in ft]
+    assert new.gmres_iterations == old.gmres_iterations
+    assert new.adjoint_iterations == old.adjoint_iterations
+    assert new.gmres_iterations[-1] < new.gmres_iterations[0]       # directions were reused
+    for a, b in zip(u_new, u_old):
+        assert np.linalg.norm(a - b) <= 1e-12 * np.linalg.norm(b)

@@ -102,7 +102,7 @@ def test_split_low_keeps_near_pairs_and_truncates_far_ones():
         assert low.plan is high.plan and low.far_degree == q
         # which pairs are near: gap below half the source radius
         gaps = [np.linalg.norm(centers[i] - centers[j]) - 2.0
-                for i, j in zip(high.plan.block_tgt, high.plan.block_src)]
+                for i, j in zip(high.plan.near.block_tgt, high.plan.near.block_src)]
         assert low.n_full_pairs == sum(g < 0.5 for g in gaps) > 0
         assert low.n_truncated_pairs == sum(g >= 0.5 for g in gaps) > 0
         errs.append(np.linalg.norm(low @ x - u) / np.linalg.norm(u))
@@ -147,11 +147,11 @@ def test_compressed_split_low_cuts_block_singular_values():
     u = dense @ x
     # a cut far below the blocks' accuracy: the factored blocks are the dense ones
     exact = split_mobility(high, 4, 1e-12, rank_tol=1e-15)
-    assert exact.n_factored_blocks == high.plan.blocks.shape[0]
+    assert exact.n_factored_blocks == high.plan.near.blocks.shape[0]
     assert np.linalg.norm(exact @ x - u) <= 1e-9 * np.linalg.norm(u)
     # a cut at 1e-2: fewer terms than any block's size, less work, a small change
     cut = split_mobility(high, 4, 1e-12, rank_tol=1e-2)
-    nv = high.plan.blocks.shape[1]
+    nv = high.plan.near.blocks.shape[1]
     assert 1 <= cut.mean_rank < nv / 2
     # fewer multiply-adds than the same blocks dense (the high's rotated form, which the
     # uncompressed split keeps, is cheaper still: docs/mobility.md)
@@ -164,7 +164,7 @@ def test_compressed_split_low_cuts_block_singular_values():
     first, second, off, rank, length = g.factors
     L, r, o = length[0], rank[0], off[0]
     E0 = second[o:o + r * L].reshape(r, L).T @ first[o:o + r * L].reshape(r, L)
-    B0 = high.plan.blocks[0, :L, :L]
+    B0 = high.plan.near.blocks[0, :L, :L]
     s = np.linalg.svd(B0, compute_uv=False)
     assert r == int((s > 1e-2 * s[0]).sum())
     assert np.isclose(np.linalg.norm(E0 - B0, 2), s[r], rtol=1e-6)

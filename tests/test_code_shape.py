@@ -180,6 +180,32 @@ def test_the_circle_check_sees_a_circle():
     assert _cycles(graph) == [["a", "b", "c"]]
 
 
+def _module_map(package: Path) -> list[str]:
+    """The modules a package docstring's map names (``* :mod:`.name```, in order)."""
+    doc = ast.get_docstring(ast.parse((package / "__init__.py").read_text())) or ""
+    out: list[str] = []
+    for line in doc.splitlines():
+        if line.startswith("* "):
+            for part in line[2:].split(": ", 1)[0].split(", "):
+                if part.startswith(":mod:`.") and part.endswith("`"):
+                    out.append(part[len(":mod:`."):-1])
+    return out
+
+
+def test_the_bim_module_map_matches_the_code():
+    """The boundary-integral package's one module map (its docstring) names every module
+    once, and every import between them points further down the map."""
+    package = ROOT / "problems/suspension/bim"
+    order = _module_map(package)
+    modules = sorted(p.stem for p in package.glob("*.py") if p.stem != "__init__")
+    assert sorted(order) == modules, (sorted(order), modules)
+    graph = _graph()
+    prefix = "lcpbench.problems.suspension.bim."
+    up = [(a, b) for a in order for b in sorted(graph[prefix + a])
+          if b.startswith(prefix) and order.index(b[len(prefix):]) <= order.index(a)]
+    assert not up, f"imports up the module map: {up}"
+
+
 def test_modules_are_at_most_600_lines():
     long = {_rel(p): len(p.read_text().splitlines()) for p in _sources()}
     bad = {k: v for k, v in long.items() if v > MAX_MODULE_LINES and k not in EXEMPT_MODULES}

@@ -7,8 +7,8 @@ Every piece here is the exact transpose of the discrete forward piece at full ac
 the self operators and the read-off as dense per-sphere matrices, the near-field blocks by
 their own ``add_transpose`` (:mod:`.blocks`, :mod:`.split`), the on-the-fly expansions, the
 Faxen read-off and the direct sums by the transposed compiled kernels
-(:mod:`.kernels_adjoint`), and with ``far="fmm"`` the FMM sum by a stresslet FMM.  The extra
-memory is one complex array of ``5 (p+1)^2`` coefficients per sphere, a few ``3N x 3N``
+(:mod:`.kernels_adjoint`), and the far field's own sum by its strategy
+(:meth:`.farfield.FarField.add_transpose`; a stresslet FMM for the FMM).  The extra memory is one complex array of ``5 (p+1)^2`` coefficients per sphere, a few ``3N x 3N``
 one-sphere matrices and index arrays, built on first use; no per-pair matrices.  The pieces
 read the shared :class:`.setup.BimSetup`; they hold no reference to an operator.
 """
@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .farfield import group_ranges
 from .kernels import PARALLEL_WORK, dense_rows
 from .kernels_adjoint import (
     center_readout_adjoint,
     direct_traction_adjoint,
     direct_traction_adjoint_serial,
-    direct_traction_adjoint_skip,
     traction_expansion_adjoint,
 )
 from .pairs import csr
@@ -30,46 +30,6 @@ from .setup import BimSetup
 from .sphere_vsh import SphereGrid, coefficient_matrix, sphere_grid
 
 __all__ = ["AdjointPieces"]
-
-
-def _group_ranges(ptr: np.ndarray, start: np.ndarray, stop: np.ndarray, n_per: int) -> dict:
-    """Regroup per-target source ranges (``ptr, start, stop`` as in ``PairPlan.dir_ranges``:
-    target sphere i sums ``start[k]:stop[k]`` for k in ``ptr[i]:ptr[i+1]``) by source
-    range, for the transposed sums (:func:`kernels_adjoint.direct_traction_adjoint`)."""
-    triples = sorted((int(start[k]), int(stop[k]), i)
-                     for i in range(ptr.size - 1) for k in range(ptr[i], ptr[i + 1]))
-    starts = np.array([t[0] for t in triples], dtype=np.int64)
-    first = (np.nonzero(np.r_[True, starts[1:] != starts[:-1]])[0] if triples
-             else np.zeros(0, dtype=np.int64))
-    return {"start": starts[first],
-            "stop": np.array([triples[k][1] for k in first], dtype=np.int64),
-            "ptr": np.r_[first, len(triples)].astype(np.int64),
-            "tgt": np.array([t[2] for t in triples], dtype=np.int64),
-            "work": n_per * sum(b - a for a, b, _ in triples)}
-
-
-def fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.ndarray,
-                         eps: float) -> np.ndarray:
-    """Transpose of :func:`fmm.fmm_traction` (points are sources and targets alike).
-
-    The traction at ``x_k`` (normal ``n_k``) of a point force ``f`` at ``y`` is
-    ``-(3/4 pi) (r.n_k) r (r.f) / |r|^5`` with ``r = x_k - y``; its transpose, the adjoint
-    force at ``y`` of adjoint tractions ``b_k``, is ``(3/4 pi) sum_k r' (r'.b_k)(r'.n_k) /
-    |r'|^5`` with ``r' = y - x_k``: the velocity of stresslets of strength ``b_k`` and
-    orientation ``n_k``, which is fmm3dpy's stresslet normalisation (checked against the
-    direct sum to 1e-15).  Self points are excluded, as in the forward FMM.
-
-    Returns
-    -------
-    ndarray, shape (n, 3)
-        Adjoint point forces at every point.
-    """
-    import fmm3dpy
-
-    out = fmm3dpy.stfmm3d(eps=float(max(eps, 1e-15)), sources=np.ascontiguousarray(points.T),
-                          strslet=np.ascontiguousarray(trac_bar.T),
-                          strsvec=np.ascontiguousarray(normals.T), ifppreg=1)
-    return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)
 
 
 class AdjointPieces:
@@ -93,19 +53,19 @@ class AdjointPieces:
         self.analysis = np.ascontiguousarray(setup.basis.A)
         self.read = np.ascontiguousarray(setup.readout)
         self.proj = None if plan.near_proj is None else np.ascontiguousarray(plan.near_proj)
-        self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in plan.synth]
+        quad = plan.quadrature
+        self.synth = [None if S is None else np.ascontiguousarray(S.T) for S in quad.synth]
         self.tgt = tuple(np.ascontiguousarray(a[:, k]) for a in (setup.tgt_pts, setup.tgt_nrm)
                          for k in range(3))
         Cm = coefficient_matrix(setup.p)                        # (3N, 5 (p+1)^2), D = s @ Cm
         self.coef = np.ascontiguousarray(np.vstack([Cm.T.real, -Cm.T.imag]))
-        # direct sums at full accuracy (rung 0), grouped by source range; with far="fmm"
-        # also the native-grid pairs the forward product subtracts from the FMM sum
-        self.direct = _group_ranges(*plan.dir_ranges[0], plan.N) if plan.n_src else None
-        self.fmm_sub = _group_ranges(*plan.fmm_sub, plan.N) if setup.far == "fmm" else None
+        # direct sums at full accuracy (rung 0), grouped by source range
+        self.direct = group_ranges(*quad.dir_ranges[0], plan.N) if quad.n_src else None
         # on-the-fly expansion pairs, by source sphere
         self.fly = [self._fly_group(ptr, idx, grid, projected) for ptr, idx, grid, projected in (
-            (plan.fly_ptr, plan.fly_idx, plan.near_grid, plan.near_proj is not None),
-            (plan.flyn_ptr, plan.flyn_idx, plan.grid, False)) if idx.size]
+            (plan.expansions.fly_ptr, plan.expansions.fly_idx, plan.near_grid,
+             plan.near_proj is not None),
+            (plan.expansions.flyn_ptr, plan.expansions.flyn_idx, plan.grid, False)) if idx.size]
 
     def _fly_group(self, ptr: np.ndarray, idx: np.ndarray, grid: SphereGrid,
                    projected: bool) -> dict:
@@ -138,7 +98,10 @@ class AdjointPieces:
         p = op.p
         Dbar = np.zeros((op.M, 5, p + 1, p + 1), dtype=np.complex128)
         for g in self.fly:
-            tb = dense_rows(ob[g["tgt"]], self.proj) if g["projected"] else ob[g["tgt"]]
+            tb = ob[g["tgt"]]
+            if g["projected"]:
+                assert self.proj is not None
+                tb = dense_rows(tb, self.proj)
             traction_expansion_adjoint(g["pts"], g["nrm"], g["size"], g["ptr"], g["blk"],
                                        op.centers, op.radii,
                                        np.ascontiguousarray(tb.reshape(-1, 3)), p, Dbar)
@@ -149,25 +112,26 @@ class AdjointPieces:
         """Transpose of the forward source forces: adds the adjoint point forces to the
         densities ``s_bar`` (native levels) and to the VSH coefficients ``coef_bar``."""
         plan = self.setup.plan
-        for L, q in enumerate(plan.levels):
-            J = plan.lvl_spheres[L]
+        for L, q in enumerate(plan.quadrature.levels):
+            J = plan.quadrature.lvl_spheres[L]
             if J.size == 0:
                 continue
-            b0 = plan.lvl_base[L]
+            b0 = plan.quadrature.lvl_base[L]
             nq = sphere_grid(q).size
             Fb = np.stack([f[b0:b0 + J.size * nq] for f in f_bar], axis=1).reshape(J.size, nq, 3)
-            Fb = (Fb * plan.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
-            if self.synth[L] is None:
+            Fb = (Fb * plan.quadrature.src_scale[L][:, :, None]).reshape(J.size, 3 * nq)
+            S = self.synth[L]
+            if S is None:
                 s_bar[J] += Fb
             else:
-                coef_bar[J] += dense_rows(Fb, self.synth[L])
+                coef_bar[J] += dense_rows(Fb, S)
 
     def apply_bie(self, w: np.ndarray) -> np.ndarray:
-        """Transpose of the traction operator ``A_bie`` at full accuracy (rung 0).  With
-        ``far="fmm"`` the FMM sum is transposed by a stresslet FMM
-        (:func:`fmm_traction_adjoint`, same tolerance) and the native-grid pairs the forward
-        product removes are removed by transposed direct sums, so the adjoint matches the
-        forward to the FMM tolerance."""
+        """Transpose of the traction operator ``A_bie`` at full accuracy (rung 0).  The far
+        field's sum is transposed by its strategy (:mod:`.farfield`): with the FMM by a
+        stresslet FMM at the same tolerance, the native-grid pairs the forward product
+        removes removed by transposed direct sums, so the adjoint matches the forward to
+        the FMM tolerance."""
         out, coef_bar, ob = self.apply_bie_unblocked(w)
         if coef_bar is not None:
             self.near.add_transpose(ob, coef_bar)
@@ -187,29 +151,20 @@ class AdjointPieces:
         coef_bar = None
         if M > 1:
             coef_bar = np.zeros((M, self.analysis.shape[0]))
-            if plan.fly_idx.size or plan.flyn_idx.size:
+            if plan.expansions.fly_idx.size or plan.expansions.flyn_idx.size:
                 out += self._near_on_the_fly(ob)
-            if plan.n_src:
+            if plan.quadrature.n_src:
                 tb = ob.reshape(M * N, 3)
                 tbc = tuple(np.ascontiguousarray(tb[:, k]) for k in range(3))
-                f_bar = [np.zeros(plan.n_src) for _ in range(3)]
+                f_bar = [np.zeros(plan.quadrature.n_src) for _ in range(3)]
                 g = self.direct
+                assert g is not None                    # set whenever there are sources
                 if g["start"].size:
                     fn = (direct_traction_adjoint if g["work"] > PARALLEL_WORK
                           else direct_traction_adjoint_serial)
                     fn(*self.tgt, *tbc, N, g["ptr"], g["tgt"], g["start"], g["stop"],
-                       *plan.src_xyz, *f_bar, False)
-                if op.far == "fmm":
-                    b0 = plan.lvl_base[plan.native]
-                    fb = fmm_traction_adjoint(op.tgt_pts, op.tgt_nrm, tb, op.quad_tol)
-                    sub = [np.zeros(plan.n_src) for _ in range(3)]
-                    g = self.fmm_sub
-                    direct_traction_adjoint_skip(*self.tgt, *tbc, N, g["ptr"], g["tgt"],
-                                                 g["start"], g["stop"], *plan.src_xyz, *sub,
-                                                 True)
-                    for k in range(3):
-                        f_bar[k][b0:b0 + M * N] += fb[:, k]
-                        f_bar[k] -= sub[k]
+                       *plan.quadrature.src_xyz, *f_bar, False)
+                op.far_field.add_transpose(op, tb, self.tgt, f_bar)
                 self._source_forces(f_bar, out, coef_bar)
         return out, coef_bar, ob
 

@@ -27,6 +27,7 @@ from .kernels_adjoint import (
 )
 from .kernels_rotated import (
     FlyPairs,
+    PlanBlocks,
     RotatedPairs,
     rotated_both,
     rotated_both_serial,
@@ -68,8 +69,8 @@ def _part(blocks, tgt: np.ndarray, src: np.ndarray, M: int) -> _Dense:
 
 class StoredBlocks:
     """The plan's near-field blocks as the operator's near-field part: blocks stored
-    assembled (``plan.blocks``, or its dense part), and with ``pair_blocks="table-all"``
-    the table pairs in rotated form (``plan.rotated``, :mod:`.kernels_rotated`).
+    assembled (``plan.near.blocks``, or its dense part), and with ``pair_blocks="table-all"``
+    the table pairs in rotated form (``plan.near.rotated``, :mod:`.kernels_rotated`).
 
     Parameters
     ----------
@@ -82,20 +83,23 @@ class StoredBlocks:
 
     def __init__(self, plan: PairPlan) -> None:
         self.plan = plan
-        self.rotated: RotatedPairs | None = getattr(plan, "rotated", None)
-        tgt, src = plan.block_tgt, plan.block_src
-        self.fly: FlyPairs | None = getattr(plan, "fly_pairs", None)
-        self.frame: PairFrame | None = getattr(plan, "pair_frame", None)
+        self.rotated: RotatedPairs | None = plan.near.rotated
+        tgt, src = plan.near.block_tgt, plan.near.block_src
+        self.fly: FlyPairs | None = plan.near.fly_pairs
+        self.frame: PairFrame | None = plan.near.pair_frame
         self._fly = None
         if self.rotated is None:
-            self._dense = _part(plan.blocks, tgt, src, plan.M)
+            self._dense = _part(plan.near.blocks, tgt, src, plan.M)
             self._rot = None
         else:
-            d, r = plan.dense_pos, plan.rot_pos
-            self._dense = _part(plan.blocks.dense, tgt[d], src[d], plan.M)
+            d, r = plan.near.dense_pos, plan.near.rot_pos
+            assert isinstance(plan.near.blocks, PlanBlocks)     # rotated pairs: a mixed stack
+            self._dense = _part(plan.near.blocks.dense, tgt[d], src[d], plan.M)
             self._rot = _part(self.rotated.form, tgt[r], src[r], plan.M)
             if self.fly is not None:
-                self._fly = [_part(None, tgt[plan.fly_pos[s]], src[plan.fly_pos[s]], plan.M)
+                late = plan.near.fly_pos
+                assert late is not None                     # set with the rotated pairs
+                self._fly = [_part(None, tgt[late[s]], src[late[s]], plan.M)
                              for s in self.fly.chunks()]
 
     @property
@@ -132,7 +136,7 @@ class StoredBlocks:
     def _coef_acc(self, coef: np.ndarray) -> np.ndarray:
         """The blocks' output in coefficients ``(M, nv)``."""
         plan, d = self.plan, self._dense
-        acc = np.zeros((plan.M, plan.block_synth.shape[0]))
+        acc = np.zeros((plan.M, plan.near.block_synth.shape[0]))
         if d.src.size:
             fn = apply_blocks if d.blocks.size > PARALLEL_WORK else apply_blocks_serial
             fn(d.blocks, d.ptr, d.src, coef, acc)
@@ -147,9 +151,9 @@ class StoredBlocks:
         """The stored blocks applied to the VSH coefficients ``coef``, on the grid
         ``(M, 3N)`` (zeros when no pair has a block)."""
         plan = self.plan
-        if not plan.n_block_pairs:
+        if not plan.near.n_block_pairs:
             return np.zeros((plan.M, 3 * plan.N))
-        return dense_rows(self._coef_acc(coef), plan.block_synth)
+        return dense_rows(self._coef_acc(coef), plan.near.block_synth)
 
     def _add_transpose_coef(self, x: np.ndarray, coef_bar: np.ndarray) -> None:
         """Adds the transposed blocks applied to adjoint coefficients ``x`` (M, nv)."""
@@ -168,9 +172,9 @@ class StoredBlocks:
         """Adds the transposed blocks' share of adjoint tractions ``ob`` (M, 3N) to the
         adjoint coefficients ``coef_bar`` (M, nv)."""
         plan = self.plan
-        if not plan.n_block_pairs:
+        if not plan.near.n_block_pairs:
             return
-        self._add_transpose_coef(np.ascontiguousarray(dense_rows(ob, plan.block_synth_T)),
+        self._add_transpose_coef(np.ascontiguousarray(dense_rows(ob, plan.near.block_synth_T)),
                                  coef_bar)
 
     def apply_both(self, coef: np.ndarray, ob: np.ndarray, coef_bar: np.ndarray,
@@ -178,11 +182,11 @@ class StoredBlocks:
         """:meth:`apply` added to ``out`` and :meth:`add_transpose` added to ``coef_bar``,
         reading every block once."""
         plan = self.plan
-        if not plan.n_block_pairs:
+        if not plan.near.n_block_pairs:
             return
-        x = np.ascontiguousarray(dense_rows(ob, plan.block_synth_T))
+        x = np.ascontiguousarray(dense_rows(ob, plan.near.block_synth_T))
         coef = np.ascontiguousarray(coef)
-        acc = np.zeros((plan.M, plan.block_synth.shape[0]))
+        acc = np.zeros((plan.M, plan.near.block_synth.shape[0]))
         rot = (rotated_both, rotated_both_serial)
         for part, fns in ([(self._dense, (apply_blocks_both, apply_blocks_both_serial))]
                           + [(r, rot) for r in self._rotated_parts()]):
@@ -194,4 +198,4 @@ class StoredBlocks:
             coef_bar += part.by_source @ bar
         if self.frame is not None:
             self.frame.both(coef, acc, x, coef_bar, parallel=self.work > PARALLEL_WORK)
-        out += dense_rows(acc, plan.block_synth)
+        out += dense_rows(acc, plan.near.block_synth)

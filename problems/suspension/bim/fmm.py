@@ -21,7 +21,7 @@ import importlib.util
 
 import numpy as np
 
-__all__ = ["check_fmm", "fmm_traction", "fmm_available", "resolve_far", "FAR_CROSSOVER_M",
+__all__ = ["check_fmm", "fmm_traction", "fmm_traction_adjoint", "fmm_available", "resolve_far", "FAR_CROSSOVER_M",
            "FAR_ENGINES"]
 
 FAR_ENGINES = ("auto", "direct", "fmm")
@@ -103,3 +103,27 @@ def fmm_traction(points: np.ndarray, normals: np.ndarray, forces: np.ndarray,
     nT = normals.T
     trac = np.einsum("ijn,jn->in", S, nT) - pre[None, :] * nT
     return np.ascontiguousarray(trac.T)
+
+
+def fmm_traction_adjoint(points: np.ndarray, normals: np.ndarray, trac_bar: np.ndarray,
+                         eps: float) -> np.ndarray:
+    """Transpose of :func:`fmm_traction` (points are sources and targets alike).
+
+    The traction at ``x_k`` (normal ``n_k``) of a point force ``f`` at ``y`` is
+    ``-(3/4 pi) (r.n_k) r (r.f) / |r|^5`` with ``r = x_k - y``; its transpose, the adjoint
+    force at ``y`` of adjoint tractions ``b_k``, is ``(3/4 pi) sum_k r' (r'.b_k)(r'.n_k) /
+    |r'|^5`` with ``r' = y - x_k``: the velocity of stresslets of strength ``b_k`` and
+    orientation ``n_k``, which is fmm3dpy's stresslet normalisation (checked against the
+    direct sum to 1e-15).  Self points are excluded, as in the forward FMM.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Adjoint point forces at every point.
+    """
+    import fmm3dpy
+
+    out = fmm3dpy.stfmm3d(eps=float(max(eps, 1e-15)), sources=np.ascontiguousarray(points.T),
+                          strslet=np.ascontiguousarray(trac_bar.T),
+                          strsvec=np.ascontiguousarray(normals.T), ifppreg=1)
+    return np.ascontiguousarray(np.asarray(out.pot).reshape(3, -1).T)

@@ -52,8 +52,8 @@ GMRES is relaxed (inexact Krylov): once the residual estimate has dropped to
 ``10^-k``, products use the split for ``quad_tol * 10^k`` (at most 1e-4),
 because later Krylov directions enter the solution with weights of the size of
 the residual; residuals at restarts and the reported final residual use full
-accuracy.  GMRES is scipy's, driven one restart cycle at a time so that it knows the
-rung of every product (:func:`.gmres.relaxed_gmres`).  Dense per-sphere products run
+accuracy.  GMRES runs one restart cycle at a time so that it knows the rung of every
+product (:func:`.gmres.relaxed_gmres`).  Dense per-sphere products run
 in compiled loops and scipy's vector work with BLAS limited to one thread
 (threadpoolctl): threaded BLAS would compete with the compiled parallel kernels on few
 cores (docs/mobility.md has the measured slow-down).
@@ -74,6 +74,8 @@ ground truth near contact, are measured in docs/mobility.md.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 from scipy.sparse.linalg import LinearOperator
 
@@ -84,7 +86,7 @@ from .adjoint import AdjointPieces
 from .blocks import StoredBlocks
 from .kernels import dense_rows
 from .pairs import PairPlan
-from .recycle import BUDGET_FLOOR, KrylovBudget, RecycledGCR, default_capacity, solve_together
+from .recycle import BUDGET_FLOOR, KrylovBudget, default_capacity, solve_together
 from .setup import NEAR_UPSAMPLE, BimSetup
 from .solves import BimConvergenceWarning, KrylovSolves
 from .sphere_vsh import default_quad_tol
@@ -92,9 +94,9 @@ from .sphere_vsh import default_quad_tol
 __all__ = ["BimMobility", "bim_mobility", "BimConvergenceWarning"]
 
 
-def _plan_number(name: str, doc: str) -> property:
-    """A read-only attribute of the operator that is the pair plan's ``name``."""
-    return property(lambda self: getattr(self.setup.plan, name), doc=doc)
+def _plan_number(part: str, name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is the pair plan's ``part.name``."""
+    return property(lambda self: getattr(getattr(self.setup.plan, part), name), doc=doc)
 
 
 def _setup_number(name: str, doc: str) -> property:
@@ -102,7 +104,12 @@ def _setup_number(name: str, doc: str) -> property:
     return property(lambda self: getattr(self.setup, name), doc=doc)
 
 
-class BimMobility(KrylovSolves, LinearOperator):
+def _solves_number(name: str, doc: str) -> property:
+    """A read-only attribute of the operator that is its solves' ``name``."""
+    return property(lambda self: getattr(self.solves, name), doc=doc)
+
+
+class BimMobility(LinearOperator):
     """Mobility of M rigid spheres by the traction boundary integral equation.
 
     Input per sphere ``(Fx, Fy, Fz, Tx, Ty, Tz)``, output
@@ -177,8 +184,6 @@ class BimMobility(KrylovSolves, LinearOperator):
     """
 
     setup: BimSetup
-    _recycler: RecycledGCR | None
-    _adj_recycler: RecycledGCR | None
     _pieces: AdjointPieces | None
 
     def __init__(self, centers, radii, *, p: int = 8, eps_gmres: float = 1e-8,
@@ -209,13 +214,47 @@ class BimMobility(KrylovSolves, LinearOperator):
             raise ValueError(f"on_failure = {on_failure!r}; use 'warn' or 'raise'")
         super().__init__(dtype=np.float64, shape=(6 * setup.M, 6 * setup.M))
         self.setup, self.near = setup, near
-        self.eps_gmres = float(eps_gmres)
-        self._relaxed: float | None = None     # a looser tolerance asked by at_accuracy
-        self.on_failure, self.maxiter = on_failure, int(maxiter)
-        self.recycle = max(int(recycle), 0)
-        self.krylov = krylov
         self._pieces = pieces
-        self._fresh_solvers()
+        self.solves = KrylovSolves(self, unknowns=setup.unknowns, eps_gmres=eps_gmres,
+                                   maxiter=maxiter, on_failure=on_failure, recycle=recycle,
+                                   krylov=krylov, label=f"M = {setup.M}, p = {setup.p}")
+
+    # ---- the solves' settings, records and contexts (:class:`.solves.KrylovSolves`) ---------
+    eps_gmres = _solves_number("eps_gmres", "Relative residual tolerance of GMRES.")
+    maxiter = _solves_number("maxiter", "Maximum total number of GMRES iterations per product.")
+    on_failure = _solves_number("on_failure", "What a solve that misses ``eps_gmres`` does: "
+                                "``\"warn\"`` or ``\"raise\"``.")
+    recycle = _solves_number("recycle", "Krylov directions kept per equation (0: none).")
+    krylov = _solves_number("krylov", "The memory budget of the kept directions.")
+    solve_tol = _solves_number("solve_tol", "The tolerance the next solve stops at "
+                               "(:attr:`.solves.KrylovSolves.solve_tol`).")
+    gmres_iterations = _solves_number("gmres_iterations", "Products of every forward solve.")
+    residuals = _solves_number("residuals", "Final relative residual of every forward solve.")
+    adjoint_iterations = _solves_number("adjoint_iterations",
+                                        "Products of every transposed solve.")
+    adjoint_residuals = _solves_number("adjoint_residuals",
+                                       "Final relative residual of every transposed solve.")
+
+    def cold_products(self) -> contextlib.AbstractContextManager[None]:
+        """:meth:`.solves.KrylovSolves.cold_products`: products made inside start from
+        empty recycled spaces (for timing a product at its first-product cost)."""
+        return self.solves.cold_products(self)
+
+    def at_accuracy(self, rtol: float) -> contextlib.AbstractContextManager[None]:
+        """:meth:`.solves.KrylovSolves.at_accuracy`: products made inside stop their solves
+        at relative residual ``max(rtol, eps_gmres)``.
+
+        Raises
+        ------
+        ValueError
+            If ``rtol`` is not in (0, 1).
+        """
+        return self.solves.at_accuracy(rtol)
+
+    def work_counts(self) -> dict[str, int]:
+        """:meth:`.solves.KrylovSolves.work_counts`: inner applications made so far (the
+        ``work`` hook of the counted operator)."""
+        return self.solves.work_counts()
 
     # ---- what the set-up shows --------------------------------------------------------------
     M = _setup_number("M", "Number of spheres.")
@@ -246,24 +285,26 @@ class BimMobility(KrylovSolves, LinearOperator):
         return self.setup.plan
 
     tolerance_ladder = _plan_number(
-        "tolerance_ladder", "Quadrature accuracies of the rungs of relaxed GMRES (first = "
-        "``quad_tol``).")
+        "quadrature", "tolerance_ladder", "Quadrature accuracies of the rungs of relaxed GMRES "
+        "(first = ``quad_tol``).")
     level_radii = _plan_number(
-        "level_radii", "Source-grid order -> scaled distance beyond which it is accurate to "
-        "``quad_tol``.")
+        "quadrature", "level_radii", "Source-grid order -> scaled distance beyond which it is "
+        "accurate to ``quad_tol``.")
     pairs_per_level = _plan_number(
-        "pairs_per_level", "Source-grid order -> ordered pairs summed directly on it at full "
-        "accuracy.")
-    n_far_pairs = _plan_number("n_far_pairs", "Ordered pairs handled by direct quadrature "
-                               "(not blocked).")
-    n_near_pairs = _plan_number("n_near_pairs", "Ordered pairs too close for any source grid "
-                                "(expansions).")
-    n_block_pairs = _plan_number("n_block_pairs", "Ordered pairs whose dense block is stored.")
+        "quadrature", "pairs_per_level", "Source-grid order -> ordered pairs summed directly on "
+        "it at full accuracy.")
+    n_far_pairs = _plan_number("quadrature", "n_far_pairs", "Ordered pairs handled by direct "
+                               "quadrature (not blocked).")
+    n_near_pairs = _plan_number("expansions", "n_near_pairs", "Ordered pairs too close for any "
+                                "source grid (expansions).")
+    n_block_pairs = _plan_number("near", "n_block_pairs",
+                                 "Ordered pairs whose dense block is stored.")
 
     @property
     def recycled_directions(self) -> int:
         """Krylov directions kept for the forward equation (0 without recycling)."""
-        return 0 if self._recycler is None else self._recycler.size
+        space = self.solves.forward_space
+        return 0 if space is None else space.size
 
     # ---- twins ----------------------------------------------------------------------------------
     def at_tolerance(self, eps_gmres: float) -> BimMobility:
@@ -301,7 +342,7 @@ class BimMobility(KrylovSolves, LinearOperator):
 
     def apply_bie(self, sigma: np.ndarray, rung: int = 0) -> np.ndarray:
         """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` for stacked densities, with the
-        quadrature between spheres accurate to ``plan.tolerance_ladder[rung]``."""
+        quadrature between spheres accurate to ``plan.quadrature.tolerance_ladder[rung]``."""
         out, coef = self.setup.apply_unblocked(sigma, rung)
         if coef is not None:
             out += self.near.apply(coef)
@@ -351,14 +392,15 @@ class BimMobility(KrylovSolves, LinearOperator):
         records = (self.gmres_iterations, self.residuals)
         b = self.rhs(ft)
         if float(np.linalg.norm(b)) == 0.0:
-            self._record("BIM GMRES", 0, 0.0, records)
+            self.solves.record("BIM GMRES", 0, 0.0, records)
             return np.zeros_like(b)
-        if self._recycler is not None:
-            return self._recycled_solve("BIM GMRES", self._recycler, b, records, x0=guess)
+        space = self.solves.forward_space
+        if space is not None:
+            return self.solves.recycled_solve("BIM GMRES", space, b, records, x0=guess)
         y0 = (self.setup.unprecondition(self.precondition(b)) if guess is None
               else np.asarray(guess, dtype=float))
-        return self._solve("BIM GMRES", self.apply_preconditioned, b, y0,
-                           len(self.plan.dir_ranges), records)
+        return self.solves.solve("BIM GMRES", self.apply_preconditioned, b, y0,
+                           len(self.plan.quadrature.dir_ranges), records)
 
     @on_one_blas_thread
     def solve_loads(self, ft: np.ndarray, guess: np.ndarray | None = None
@@ -387,13 +429,14 @@ class BimMobility(KrylovSolves, LinearOperator):
         records = (self.adjoint_iterations, self.adjoint_residuals)
         z = np.asarray(z, dtype=float).reshape(-1)
         if float(np.linalg.norm(z)) == 0.0:
-            self._record("BIM adjoint GMRES", 0, 0.0, records)
+            self.solves.record("BIM adjoint GMRES", 0, 0.0, records)
             return np.zeros_like(z)
-        if self._adj_recycler is not None:
-            return self._recycled_solve("BIM adjoint GMRES", self._adj_recycler, z, records)
+        space = self.solves.adjoint_space
+        if space is not None:
+            return self.solves.recycled_solve("BIM adjoint GMRES", space, z, records)
         pieces = self.adjoint_pieces
-        return self._solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z, z.copy(), 1,
-                           records)
+        return self.solves.solve("BIM adjoint GMRES", lambda v, k: pieces.operator(v), z,
+                                 z.copy(), 1, records)
 
     # ---- products ----------------------------------------------------------------------------
     @on_one_blas_thread
@@ -441,12 +484,12 @@ class BimMobility(KrylovSolves, LinearOperator):
         """
         x = self._checked_loads(x, "forces/torques")
         y = self._checked_loads(y, "velocities passed to rmatvec")
-        if self._recycler is None or self._adj_recycler is None:
+        fwd, adj = self.solves.forward_space, self.solves.adjoint_space
+        if fwd is None or adj is None:
             return self._matvec(x), self._rmatvec(y)
         pieces = self.adjoint_pieces
         b = self.rhs(x)
         z = pieces.precondition(pieces.velocities(y))
-        fwd, adj = self._recycler, self._adj_recycler
 
         def apply_many(vs: list) -> list:
             if vs[0] is not None and vs[1] is not None:
@@ -457,9 +500,9 @@ class BimMobility(KrylovSolves, LinearOperator):
         before = (fwd.products, adj.products)
         (yf, _, rf), (wa, _, ra) = solve_together([(fwd, b), (adj, z)], apply_many,
                                                   self.solve_tol, self.maxiter)
-        self._record("BIM GMRES", fwd.products - before[0], rf,
+        self.solves.record("BIM GMRES", fwd.products - before[0], rf,
                      (self.gmres_iterations, self.residuals))
-        self._record("BIM adjoint GMRES", adj.products - before[1], ra,
+        self.solves.record("BIM adjoint GMRES", adj.products - before[1], ra,
                      (self.adjoint_iterations, self.adjoint_residuals))
         u = self.velocities(self.precondition(yf)).reshape(-1)
         return u, pieces.rhs(wa)

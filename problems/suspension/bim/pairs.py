@@ -29,9 +29,11 @@ import numpy as np
 from lcpbench.toolkit.blas import one_blas_thread
 
 from .coaxial import RHO_MIN, coaxial_table, order_mask, table_range
+from .farfield import FarField
 from .kernels import real_block_columns, traction_response
 from .kernels_rotated import FlyPairs, PlanBlocks, RotatedPairs
 from .pair_frame import PairFrame
+from .pair_parts import ExpansionPairs, NearBlocks, Quadrature
 from .rotation import degree_slices, rotate_blocks, wigner_directions
 from .sphere_vsh import (
     SphereGrid,
@@ -109,8 +111,9 @@ class PairPlan:
         The order, the native and near-field grids, the near-field projection and the basis.
     quad_tol : float
         Quadrature accuracy of the full-accuracy rung.
-    far : {"direct", "fmm"}
-        Far-field engine (the FMM works on the native grid and is not relaxed).
+    far : FarField
+        The far-field strategy (:mod:`.farfield`): which source grids the quadrature
+        pairs may use, whether they are relaxed, and the ranges of the direct sums.
     near_block_mb : float
         Memory budget of the stored blocks.
     pair_blocks : {"table-all", "table", "direct"}
@@ -118,41 +121,17 @@ class PairPlan:
 
     Attributes
     ----------
-    tolerance_ladder : tuple of float
-        Quadrature accuracies of the rungs (first = ``quad_tol``).
-    level_radii : dict
-        Source-grid order -> scaled distance beyond which it is accurate to ``quad_tol``.
-    pairs_per_level : dict
-        Source-grid order -> ordered pairs summed directly on it at full accuracy.
-    n_far_pairs, n_near_pairs, n_block_pairs : int
-        Pairs by direct quadrature (not blocked), by expansions, with a stored block.
-    n_table_blocks : int
-        Blocks taken from the coaxial table (the others are built directly).
-    n_stored_blocks : int
-        Blocks within the memory budget (the others of ``n_block_pairs`` are table
-        blocks rotated at every product).
-    block_bytes : int
-        Memory of the stored blocks.
-    rotated, fly_pairs : RotatedPairs or None, FlyPairs or None
-        With "table-all": the stored table pairs in rotated form, and those beyond the
-        budget; ``dense_pos``, ``rot_pos``, ``fly_pos`` are the positions of the
-        assembled, rotated and rotated-on-the-fly pairs in the block order.
-    blocks, block_tgt, block_src, block_ptr : ndarray
-        Blocks (traction on sphere i per VSH coefficient of sphere j), sorted by target
-        sphere (``blocks`` a :class:`.kernels_rotated.PlanBlocks` with "table-all").
-    fly_ptr, fly_idx, flyn_ptr, flyn_idx : ndarray
-        On-the-fly expansion pairs per target sphere: projected zone, and node-sampled.
-    levels, native, lvl_spheres, lvl_base, n_src, src_xyz, src_scale, synth :
-        Source grids, the spheres on each, their point offsets, points and weights, and
-        the synthesis matrices of the upsampled levels.
-    dir_ranges : list
-        Per rung: ``(ptr, start, stop)`` source ranges summed by each target sphere.
-    fmm_sub : tuple
-        With ``far="fmm"``: the native-grid ranges removed from the FMM sum.
+    quadrature : Quadrature
+        The pairs summed by quadrature: source grids per rung, source points, direct-sum
+        ranges (:class:`.pair_parts.Quadrature`).
+    near : NearBlocks
+        The stored near-field blocks (:class:`.pair_parts.NearBlocks`).
+    expansions : ExpansionPairs
+        The expansion pairs evaluated on the fly (:class:`.pair_parts.ExpansionPairs`).
     """
 
     def __init__(self, centers: np.ndarray, radii: np.ndarray, grids: Grids, *,
-                 quad_tol: float, far: str, near_block_mb: float,
+                 quad_tol: float, far: FarField, near_block_mb: float,
                  pair_blocks: str = "table-all") -> None:
         if pair_blocks not in PAIR_BLOCKS:
             raise ValueError(f"pair_blocks = {pair_blocks!r}; use 'direct' (every block built "
@@ -161,24 +140,26 @@ class PairPlan:
                              "pairs too)")
         self.pair_blocks = pair_blocks
         self.centers, self.radii, self.M, self.p = centers, radii, centers.shape[0], grids.p
-        self.quad_tol, self.far = quad_tol, far
+        self.quad_tol, self.far_field = quad_tol, far
         self.grid, self.near_grid, self.near_proj = grids.grid, grids.near_grid, grids.near_proj
         self.N = grids.grid.size
         self.basis = grids.basis
         self.near_block_mb = float(near_block_mb)
+        self.quadrature, self.near, self.expansions = Quadrature(), NearBlocks(), ExpansionPairs()
         self._classify()
 
     def _classify(self) -> None:
         """Pair classes, tolerance ladder, blocks and source points (see the class)."""
         level_of, ladder_levels = self._levels()
         self._build_blocks()
-        level_of = np.where(self.blocked, -2, level_of)
-        ladder_levels = [np.where(self.blocked, -2, lv) for lv in ladder_levels]
+        level_of = np.where(self.near.blocked, -2, level_of)
+        ladder_levels = [np.where(self.near.blocked, -2, lv) for lv in ladder_levels]
         slot = self._sources(ladder_levels)
         self._ranges(level_of, ladder_levels, slot)
-        self.pairs_per_level = {q: int((level_of == L).sum()) for L, q in enumerate(self.levels)}
-        self.n_far_pairs = int((level_of >= 0).sum())
-        self.n_near_pairs = int((self.level_of == -2).sum())
+        self.quadrature.pairs_per_level = {q: int((level_of == L).sum())
+                                           for L, q in enumerate(self.quadrature.levels)}
+        self.quadrature.n_far_pairs = int((level_of >= 0).sum())
+        self.expansions.n_near_pairs = int((self.quadrature.level_of == -2).sum())
 
     def _levels(self) -> tuple[np.ndarray, list[np.ndarray]]:
         """The source level of every ordered pair at full accuracy (``level_of``: -1 self,
@@ -189,10 +170,10 @@ class PairPlan:
         levels = grid_levels(p)
         # accuracy ladder for relaxed (inexact) GMRES: quad_tol * RELAX_STEP^k <= 1e-4
         tols = [self.quad_tol]
-        if self.far == "direct":
+        if self.far_field.relaxes:
             while tols[-1] * RELAX_STEP <= 1e-4 * (1 + 1e-9) and len(tols) < 12:
                 tols.append(tols[-1] * RELAX_STEP)
-        self.tolerance_ladder = tuple(tols)
+        self.quadrature.tolerance_ladder = tuple(tols)
         rho = np.full((M, M), np.inf)
         if M > 1:
             d = np.linalg.norm(c[:, None, :] - c[None, :, :], axis=2)
@@ -212,74 +193,68 @@ class PairPlan:
 
         level_of, radius = classify(self.quad_tol)
         native = levels.index(p)
-        self.native = native
-        if self.far == "fmm":       # the FMM works on the native grid: no coarser levels
-            level_of[(level_of >= 0) & (level_of < native)] = native
+        self.quadrature.native = native
+        level_of = self.far_field.levels(level_of, native)
         if self.near_proj is not None:     # the projected zone: expansions at any tolerance
             level_of[(rho < PROJECT_RHO) & (level_of >= 0)] = -2
-        self.level_radii = dict(zip(levels, radius.tolist()))
+        self.quadrature.level_radii = dict(zip(levels, radius.tolist()))
         ladder_levels = [level_of]
         for tol in tols[1:]:
             lv, _ = classify(tol)
             ladder_levels.append(np.where(level_of == -2, -2, lv))   # expansion pairs stay
-        self.levels = levels
-        self.level_of = level_of
+        self.quadrature.levels = levels
+        self.quadrature.level_of = level_of
         return level_of, ladder_levels
 
     def _sources(self, ladder_levels: list[np.ndarray]) -> np.ndarray:
         """Source points and weights of every level (the spheres any rung sums on it) and
         the synthesis of the upsampled levels; returns each sphere's first point per level
         (-1 when it is not a source there)."""
-        M, p, levels, native = self.M, self.p, self.levels, self.native
+        M, p, levels, native = self.M, self.p, self.quadrature.levels, self.quadrature.native
         c, r = self.centers, self.radii
-        self.lvl_spheres, self.lvl_base = [], []
+        self.quadrature.lvl_spheres, self.quadrature.lvl_base = [], []
         base = 0
         for L, q in enumerate(levels):
             used = np.nonzero(np.any([(lv == L).any(axis=0) for lv in ladder_levels], axis=0))[0]
-            if L == native and self.far == "fmm":
-                used = np.arange(M)
-            self.lvl_spheres.append(used)
-            self.lvl_base.append(base)
+            if L == native:
+                used = self.far_field.native_sources(used, M)
+            self.quadrature.lvl_spheres.append(used)
+            self.quadrature.lvl_base.append(base)
             base += used.size * sphere_grid(q).size
-        self.n_src = base
+        self.quadrature.n_src = base
         xyz = np.empty((3, base))
-        self.src_scale = []
+        self.quadrature.src_scale = []
         slot = np.full((len(levels), M), -1, dtype=np.int64)
         for L, q in enumerate(levels):
             g = sphere_grid(q)
-            J = self.lvl_spheres[L]
-            b0 = self.lvl_base[L]
+            J = self.quadrature.lvl_spheres[L]
+            b0 = self.quadrature.lvl_base[L]
             pts = c[J, None, :] + r[J, None, None] * g.nodes[None]
             xyz[:, b0:b0 + J.size * g.size] = pts.reshape(-1, 3).T
-            self.src_scale.append(np.ascontiguousarray((r[J] ** 2)[:, None] * g.weights[None, :]))
+            self.quadrature.src_scale.append(
+                np.ascontiguousarray((r[J] ** 2)[:, None] * g.weights[None, :]))
             slot[L, J] = b0 + np.arange(J.size) * g.size
-        self.src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
-        self.synth = [None if q == p or self.lvl_spheres[L].size == 0
+        self.quadrature.src_xyz = [np.ascontiguousarray(xyz[k]) for k in range(3)]
+        self.quadrature.synth = [None if q == p or self.quadrature.lvl_spheres[L].size == 0
                       else np.ascontiguousarray(sampled_basis(p, q).T)
                       for L, q in enumerate(levels)]
         return slot
 
     def _ranges(self, level_of: np.ndarray, ladder_levels: list[np.ndarray],
                 slot: np.ndarray) -> None:
-        """Per rung, the source ranges each target sphere sums (``dir_ranges``), and with
-        ``far="fmm"`` the native ranges removed from the FMM sum (``fmm_sub``)."""
-        M, native = self.M, self.native
-        nq = np.array([sphere_grid(q).size for q in self.levels], dtype=np.int64)
+        """Per rung, the source ranges each target sphere sums (``dir_ranges``, as the
+        far-field strategy has them: :meth:`.farfield.FarField.ranges`)."""
+        M, native = self.M, self.quadrature.native
+        nq = np.array([sphere_grid(q).size for q in self.quadrature.levels], dtype=np.int64)
 
-        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, ...]:
+        def ranges(lv: np.ndarray, keep) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             ii, jj = np.nonzero(keep(lv))                   # row-major: grouped by target i
             L = lv[ii, jj]
             start = slot[L, jj]
             ptr = np.searchsorted(ii, np.arange(M + 1)).astype(np.int64)
             return ptr, start.astype(np.int64), (start + nq[L]).astype(np.int64)
 
-        if self.far == "fmm":
-            # FMM sums all native points; remove its native self and non-native pairs
-            self.dir_ranges = [ranges(level_of, lambda lv: lv > native)]
-            self.fmm_sub = ranges(np.where(level_of == native, -2, native),
-                                  lambda lv: lv == native)
-        else:
-            self.dir_ranges = [ranges(lv, lambda x: x >= 0) for lv in ladder_levels]
+        self.quadrature.dir_ranges = self.far_field.ranges(level_of, ladder_levels, native, ranges)
 
     def _build_blocks(self) -> None:
         """Dense near-field blocks (traction on sphere i per VSH coefficient of sphere j),
@@ -316,8 +291,8 @@ class PairPlan:
         # candidates: expansion pairs, then pairs whose quadrature needs a source grid finer
         # than p (a stored block is then much cheaper per product than the sum; measured in
         # docs/mobility.md, "Blocks for fine-grid pairs")
-        lv = self.level_of
-        fine = [L for L, q in enumerate(self.levels) if q > self.p]
+        lv = self.quadrature.level_of
+        fine = [L for L, q in enumerate(self.quadrature.levels) if q > self.p]
         ii, jj = np.nonzero((lv == -2) | np.isin(lv, fine))
         pairs = list(zip(ii.tolist(), jj.tolist()))
         if pairs:
@@ -336,33 +311,34 @@ class PairPlan:
         if self.pair_blocks == "table-all" and rest:      # table pairs: rotated on the fly
             ri = np.array([i for i, _ in rest], dtype=np.int64)
             rj = np.array([j for _, j in rest], dtype=np.int64)
-            ok = self._table_pairs(ri, rj) & (self.level_of[ri, rj] == -2)
+            ok = self._table_pairs(ri, rj) & (self.quadrature.level_of[ri, rj] == -2)
             fly = [rest[k] for k in np.nonzero(ok)[0]]
             rest = [rest[k] for k in np.nonzero(~ok)[0]]
         stored = len(blocked)
         blocked = sorted(blocked + fly)                    # grouped by target sphere
-        self.block_bytes = int(round(mb[:nb].sum() * 2 ** 20))
+        self.near.block_bytes = int(round(mb[:nb].sum() * 2 ** 20))
         with one_blas_thread():
-            self.blocks = self._block_values(blocked, set(fly))
+            self.near.blocks = self._block_values(blocked, set(fly))
         b = self.basis
-        self.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
-        self.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
-        self.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
-        self.block_src = np.array([j for _, j in blocked], dtype=np.int64)
-        self.block_ptr = np.searchsorted(self.block_tgt, np.arange(M + 1)).astype(np.int64)
+        self.near.block_synth = np.ascontiguousarray(b.B.T)      # (nv, 3N): coefficients -> nodes
+        self.near.block_synth_T = np.ascontiguousarray(b.B)      # its transpose, for the adjoint
+        self.near.block_tgt = np.array([i for i, _ in blocked], dtype=np.int64)
+        self.near.block_src = np.array([j for _, j in blocked], dtype=np.int64)
+        self.near.block_ptr = np.searchsorted(self.near.block_tgt,
+                                              np.arange(M + 1)).astype(np.int64)
         lists: list[list[int]] = [[] for _ in range(M)]          # projected (zone)
         node_lists: list[list[int]] = [[] for _ in range(M)]     # sampled at the nodes
         for i, j in rest:
-            if self.level_of[i, j] == -2:
+            if self.quadrature.level_of[i, j] == -2:
                 zone = self.near_proj is None or self._projected(i, j)
                 (lists if zone else node_lists)[i].append(j)
-        self.blocked = np.zeros((M, M), dtype=bool)
+        self.near.blocked = np.zeros((M, M), dtype=bool)
         for i, j in blocked:
-            self.blocked[i, j] = True
-        self.fly_ptr, self.fly_idx = csr(lists)
-        self.flyn_ptr, self.flyn_idx = csr(node_lists)
-        self.n_block_pairs = len(blocked)
-        self.n_stored_blocks = stored
+            self.near.blocked[i, j] = True
+        self.expansions.fly_ptr, self.expansions.fly_idx = csr(lists)
+        self.expansions.flyn_ptr, self.expansions.flyn_idx = csr(node_lists)
+        self.near.n_block_pairs = len(blocked)
+        self.near.n_stored_blocks = stored
 
     def _rho(self, ii: np.ndarray, jj: np.ndarray) -> np.ndarray:
         """Scaled distances ``(d_ij - a_i)/a_j`` of the pairs ``(ii, jj)``."""
@@ -407,8 +383,8 @@ class PairPlan:
         ii = np.array([i for i, _ in blocked], dtype=np.int64)
         jj = np.array([j for _, j in blocked], dtype=np.int64)
         use = self._table_pairs(ii, jj)
-        self.n_table_blocks = int(use.sum())
-        self.rotated = self.fly_pairs = self.pair_frame = None
+        self.near.n_table_blocks = int(use.sum())
+        self.near.rotated = self.near.fly_pairs = self.near.pair_frame = None
         if not use.any():                                  # every block built directly
             return self._direct_blocks(blocked)
         table = coaxial_table(self.p, table_range(self.p))
@@ -421,15 +397,15 @@ class PairPlan:
         if self.pair_blocks == "table-all":
             late = np.array([pair in fly for pair in blocked], dtype=bool)
             keep, late = np.nonzero(use & ~late)[0], np.nonzero(use & late)[0]
-            self.rotated = RotatedPairs.from_table(wigner_directions(u[keep], self.p), table,
+            self.near.rotated = RotatedPairs.from_table(wigner_directions(u[keep], self.p), table,
                                                    rho[keep], self._output_map,
                                                    pairs=(ii[keep], jj[keep]))
-            self.pair_frame = PairFrame.from_table(u[keep], rho[keep], ii[keep], jj[keep],
+            self.near.pair_frame = PairFrame.from_table(u[keep], rho[keep], ii[keep], jj[keep],
                                                    table, self._output_map)
             if late.size:
-                self.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
-            self.dense_pos, self.rot_pos, self.fly_pos = rest, keep, late
-            return PlanBlocks(direct, self.rotated, self.fly_pairs, (rest, keep, late))
+                self.near.fly_pairs = FlyPairs(u[late], rho[late], table, self._output_map)
+            self.near.dense_pos, self.near.rot_pos, self.near.fly_pos = rest, keep, late
+            return PlanBlocks(direct, self.near.rotated, self.near.fly_pairs, (rest, keep, late))
         Dn = wigner_directions(u[use], self.p)
         vals = table.values(rho[use])
         E = np.empty((len(blocked), nv, nv))
@@ -458,7 +434,7 @@ class PairPlan:
         cfac = b.to_complex[flat, np.arange(nv)]
         fac = np.ascontiguousarray(expansion_factors(p))
         E = np.empty((len(blocked), nv, nv))
-        to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else None,
+        to_coef = {True: b.A @ self.near_proj if self.near_proj is not None else b.A,
                    False: b.A}
         # expansion pairs: responses on the finer grid, projected onto degree p;
         # quadrature pairs (smooth traction) and node sampling: at the native nodes
@@ -486,7 +462,7 @@ class PairPlan:
 
     def _projected(self, i: int, j: int) -> bool:
         """Whether pair (i, j) gets the projected near field (the zone ``rho < 2``)."""
-        if self.near_proj is None or self.level_of[i, j] != -2:
+        if self.near_proj is None or self.quadrature.level_of[i, j] != -2:
             return False
         d = float(np.linalg.norm(self.centers[i] - self.centers[j]))
         return (d - self.radii[i]) / self.radii[j] < PROJECT_RHO

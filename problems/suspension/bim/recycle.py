@@ -164,8 +164,9 @@ class RecycledGCR:
         self.budget = budget if self.capacity else None
         if self.budget is not None:
             self.budget.join(self)
-        self._U = np.empty((0, self.n))          # ring buffers, rows [0, _filled) valid
-        self._C = np.empty((0, self.n))
+        # ring buffer of the directions and their images side by side, row k = [u_k, c_k]
+        # (rows [0, _filled) valid), so that one pass over it applies both
+        self._W = np.empty((0, 2 * self.n))
         self._filled = 0
         self._next = 0
         self.products = 0
@@ -174,40 +175,72 @@ class RecycledGCR:
     def size(self) -> int:
         return self._filled
 
+    @property
+    def _U(self) -> np.ndarray:
+        """The kept directions (rows; a view of the ring buffer)."""
+        return self._W[:, :self.n]
+
+    @property
+    def _C(self) -> np.ndarray:
+        """Their images, orthonormal rows (a view of the ring buffer)."""
+        return self._W[:, self.n:]
+
     def clear(self) -> None:
         """Forget the kept directions (the operator changed)."""
         self._filled = self._next = 0
 
     def _reserve(self, rows: int) -> None:
         """Room for ``rows`` directions in all (pages are touched only when written)."""
-        if self._C.shape[0] < rows:
-            U = np.empty((rows, self.n))
-            C = np.empty((rows, self.n))
-            U[:self._filled] = self._U[:self._filled]
-            C[:self._filled] = self._C[:self._filled]
-            self._U, self._C = U, C
+        if self._W.shape[0] < rows:
+            W = np.empty((rows, 2 * self.n))
+            W[:self._filled] = self._W[:self._filled]
+            self._W = W
 
     def _add(self, u: np.ndarray, c: np.ndarray) -> None:
         """Keep a direction: in a new row while there is room (and the budget allows),
         else in place of the oldest."""
-        if self._filled < self._C.shape[0] and (self.budget is None
+        if self._filled < self._W.shape[0] and (self.budget is None
                                                 or self.budget.may_grow(self)):
             i = self._filled
             self._filled += 1
         else:
             i = self._next % self._filled
             self._next = i + 1
-        self._U[i] = u
-        self._C[i] = c
+        self._W[i, :self.n] = u
+        self._W[i, self.n:] = c
 
-    def _project(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(U' h, C' h)`` with ``h = C v`` over the directions held: the part of ``v`` in
-        the span of the images, and the directions that produce it (one BLAS pass each)."""
+    def _project(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(U' h, C' h, h)`` with ``h = C v`` over the directions held: the part of ``v``
+        in the span of the images, the directions that produce it and the coefficients (two
+        BLAS passes: ``h``, then both sums in one pass over the ring buffer)."""
         k = self._filled
         if k == 0:
-            return np.zeros(self.n), np.zeros(self.n)
+            return np.zeros(self.n), np.zeros(self.n), np.zeros(0)
         h = self._C[:k] @ v
-        return h @ self._U[:k], h @ self._C[:k]
+        both = h @ self._W[:k]
+        return both[:self.n], both[self.n:], h
+
+    def _orthogonalise(self, u: np.ndarray, c: np.ndarray) -> tuple[float, float]:
+        """Make the image ``c`` orthogonal to the kept images (and ``u`` follow it, so that
+        ``c`` stays the image of ``u``), in place: classical Gram-Schmidt over the kept
+        images, repeated once when the first pass removed more than ``1 - 1/sqrt(2)`` of the
+        norm (twice is enough, Kahan), the directions updated once with the summed
+        coefficients.  Returns the norms of ``c`` before and after."""
+        nc0 = float(np.linalg.norm(c))
+        k = self._filled
+        if k == 0:
+            return nc0, nc0
+        C = self._C[:k]
+        h = C @ c
+        c -= h @ C
+        nc = float(np.linalg.norm(c))
+        if nc < nc0 / np.sqrt(2.0):
+            g = C @ c
+            c -= g @ C
+            h += g
+            nc = float(np.linalg.norm(c))
+        u -= h @ self._U[:k]
+        return nc0, nc
 
     def solve(self, b: np.ndarray, rtol: float, maxiter: int,
               x0: Optional[np.ndarray] = None) -> tuple[np.ndarray, int, float]:
@@ -255,11 +288,9 @@ class RecycledGCR:
             r0 = b - self._image((yield guess))
             if float(np.linalg.norm(r0)) < nb:          # the guess helps: start from it
                 y, r = guess, r0
-        k = self._filled
-        h = self._C[:k] @ r
-        if k:
-            y += h @ self._U[:k]
-            r -= h @ self._C[:k]
+        du, dc, h = self._project(r)
+        y += du
+        r -= dc
         # sum of |coefficients| of y in the directions: bounds the rounding drift
         weight = float(np.abs(h).sum())
         its = checks = 0
@@ -273,16 +304,7 @@ class RecycledGCR:
                     u = r / float(np.linalg.norm(r))
                     c = self._image((yield u))
                     its += 1
-                    nc0 = float(np.linalg.norm(c))
-                    du, dc = self._project(c)
-                    u -= du
-                    c -= dc
-                    nc = float(np.linalg.norm(c))
-                    if nc < nc0 / np.sqrt(2.0):              # twice is enough (Kahan)
-                        du, dc = self._project(c)
-                        u -= du
-                        c -= dc
-                        nc = float(np.linalg.norm(c))
+                    nc0, nc = self._orthogonalise(u, c)
                     if not nc > _BREAKDOWN * nc0:
                         stalled = True
                         break
@@ -305,7 +327,7 @@ class RecycledGCR:
                     break
                 force = True
                 # fold the true residual back onto every direction (no product), go on
-                du, dc = self._project(r)
+                du, dc, _ = self._project(r)
                 y += du
                 r -= dc
         finally:

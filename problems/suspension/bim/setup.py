@@ -18,14 +18,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import check_configuration, check_no_overlap, check_order, check_viscosity
-from .fmm import resolve_far
+from .farfield import FarField, far_field
 from .kernels import (
     PARALLEL_WORK,
     center_readout,
     dense_rows,
     direct_traction_ranges,
     direct_traction_ranges_serial,
-    direct_traction_skip,
     synthesize_forces,
     synthesize_forces_serial,
     traction_expansion,
@@ -62,7 +61,8 @@ class BimSetup:
         Accuracy (per unit density) of the quadrature between spheres, in (0, 1).
     far : {"direct", "fmm", "auto"}
         Far-field engine (``auto``: :func:`.fmm.resolve_far`, by the number of spheres);
-        :attr:`far` is the engine used.
+        :attr:`far` is the engine used, :attr:`far_field` its strategy
+        (:mod:`.farfield`), which owns its forward and transposed sums.
     near_upsample : float
         Order of the near-field target grid in units of p (>= 1).
     near_block_mb : float
@@ -86,7 +86,7 @@ class BimSetup:
         self.p = check_order(p)
         self.mu = check_viscosity(mu)
         check_no_overlap(c, r, "bim")
-        far = resolve_far(far, c.shape[0])
+        self.far_field: FarField = far_field(far, c.shape[0])
         if not (np.isfinite(quad_tol) and 0 < quad_tol < 1):
             raise ValueError(f"quad_tol = {quad_tol!r} must be a number in (0, 1), e.g. 1e-10 "
                              "(accuracy of the quadrature between spheres)")
@@ -97,10 +97,7 @@ class BimSetup:
         if isinstance(near_upsample, bool) or not (np.isfinite(up) and up >= 1):
             raise ValueError(f"near_upsample = {near_upsample!r} must be a number >= 1 (order of "
                              "the near-field target grid in units of p; 1 = sample at the nodes)")
-        if far == "fmm":
-            from .fmm import check_fmm
-            check_fmm()
-        self.quad_tol, self.far, self.near_upsample = float(quad_tol), far, up
+        self.quad_tol, self.near_upsample = float(quad_tol), up
         self.near_block_mb = float(near_block_mb)
         self.centers, self.radii, self.M = c, r, c.shape[0]
         self._one_sphere()
@@ -108,8 +105,13 @@ class BimSetup:
         near_grid = sphere_grid(q_near)
         near_proj = None if q_near == self.p else projection_matrix(self.p, q_near)
         self.plan = PairPlan(c, r, Grids(self.p, self.grid, near_grid, near_proj, self.basis),
-                             quad_tol=self.quad_tol, far=far, near_block_mb=self.near_block_mb,
-                             pair_blocks=pair_blocks)
+                             quad_tol=self.quad_tol, far=self.far_field,
+                             near_block_mb=self.near_block_mb, pair_blocks=pair_blocks)
+
+    @property
+    def far(self) -> str:
+        """The far-field engine used, ``"direct"`` or ``"fmm"`` (:attr:`far_field`)."""
+        return self.far_field.name
 
     def _one_sphere(self) -> None:
         """The grid, the one-sphere operators and the target points of every sphere."""
@@ -180,7 +182,7 @@ class BimSetup:
         x = np.ascontiguousarray(y.reshape(M, 3 * N))
         if M == 1:
             return x.copy(), None
-        if plan.fly_idx.size or plan.flyn_idx.size or plan.n_src:
+        if plan.expansions.fly_idx.size or plan.expansions.flyn_idx.size or plan.quadrature.n_src:
             out, coef = self.apply_unblocked(dense_rows(x, self.precond_T), rung,
                                              self_part=False)
             return out + x, coef
@@ -190,7 +192,7 @@ class BimSetup:
                         ) -> tuple[np.ndarray, np.ndarray | None]:
         """``(1/2 I + K' + L) sigma + sum_j T_ij sigma_j`` without the stored near blocks
         (and without the one-sphere operator when ``self_part`` is False), with the
-        quadrature between spheres accurate to ``plan.tolerance_ladder[rung]``.
+        quadrature between spheres accurate to ``plan.quadrature.tolerance_ladder[rung]``.
 
         Returns ``(out, coef)``: ``out`` of shape ``(M, 3N)`` and ``coef`` the VSH
         coefficients the blocks act on (None for one sphere)."""
@@ -201,60 +203,54 @@ class BimSetup:
         if M > 1:
             coef = dense_rows(s, self.analysis_T)
             trac = np.zeros((M * N, 3))
-            if plan.fly_idx.size:
+            if plan.expansions.fly_idx.size:
                 out += self._near_on_the_fly(s)
-            if plan.flyn_idx.size:                  # expansion pairs beyond the zone
+            if plan.expansions.flyn_idx.size:                  # expansion pairs beyond the zone
                 traction_expansion(self.tgt_pts, self.tgt_nrm, self.tgt_sphere,
-                                   plan.flyn_ptr, plan.flyn_idx, self.centers, self.radii,
+                                   plan.expansions.flyn_ptr, plan.expansions.flyn_idx,
+                                   self.centers, self.radii,
                                    expansion_coefficients(p, s), p, trac)
-            if plan.n_src:
+            if plan.quadrature.n_src:
                 self._direct_sums(s, coef, rung, trac)
             out += trac.reshape(M, 3 * N)
         return out, coef
 
     def _direct_sums(self, s: np.ndarray, coef: np.ndarray, rung: int,
                      trac: np.ndarray) -> None:
-        """Adds the direct quadrature between spheres (and the FMM far field) to ``trac``."""
-        M, N, plan = self.M, self.N, self.plan
+        """Adds the direct quadrature between spheres and the far field's own sum
+        (:meth:`.farfield.FarField.add_forward`) to ``trac``."""
+        N, plan = self.N, self.plan
         f = self._source_forces(s, coef)
-        ptr, start, stop = plan.dir_ranges[min(rung, len(plan.dir_ranges) - 1)]
+        ranges = plan.quadrature.dir_ranges
+        ptr, start, stop = ranges[min(rung, len(ranges) - 1)]
         if stop.size:
             work = N * int((stop - start).sum())
             fn = (direct_traction_ranges if work > PARALLEL_WORK
                   else direct_traction_ranges_serial)
             fn(self.tgt_pts, self.tgt_nrm, self.tgt_sphere,
-               ptr, start, stop, *plan.src_xyz, *f, trac, False)
-        if self.far == "fmm":
-            from .fmm import fmm_traction
-            b0 = plan.lvl_base[plan.native]
-            trac += fmm_traction(self.tgt_pts, self.tgt_nrm,
-                                 np.stack([x[b0:b0 + M * N] for x in f], axis=1),
-                                 self.quad_tol)
-            ptr, start, stop = plan.fmm_sub
-            sub = np.zeros((M * N, 3))
-            direct_traction_skip(self.tgt_pts, self.tgt_nrm, self.tgt_sphere,
-                                 ptr, start, stop, *plan.src_xyz, *f, sub, True)
-            trac -= sub
+               ptr, start, stop, *plan.quadrature.src_xyz, *f, trac, False)
+        self.far_field.add_forward(self, f, trac)
 
     def _source_forces(self, s: np.ndarray, coef: np.ndarray) -> list[np.ndarray]:
         """Point forces (density times weight) at every source level, as three arrays;
         upsampled levels are synthesised from the VSH coefficients ``coef``."""
         plan = self.plan
-        f = [np.empty(plan.n_src) for _ in range(3)]
-        for L, _q in enumerate(plan.levels):
-            J = plan.lvl_spheres[L]
+        f = [np.empty(plan.quadrature.n_src) for _ in range(3)]
+        for L, _q in enumerate(plan.quadrature.levels):
+            J = plan.quadrature.lvl_spheres[L]
             if J.size == 0:
                 continue
-            b0 = plan.lvl_base[L]
-            if plan.synth[L] is None:
+            b0 = plan.quadrature.lvl_base[L]
+            S = plan.quadrature.synth[L]
+            if S is None:
                 nq = self.N
-                F = s[J].reshape(J.size, nq, 3) * plan.src_scale[L][:, :, None]
+                F = s[J].reshape(J.size, nq, 3) * plan.quadrature.src_scale[L][:, :, None]
                 for k in range(3):
                     f[k][b0:b0 + J.size * nq] = F[:, :, k].reshape(-1)
             else:
-                fn = (synthesize_forces if J.size * plan.synth[L].size > PARALLEL_WORK
+                fn = (synthesize_forces if J.size * S.size > PARALLEL_WORK
                       else synthesize_forces_serial)
-                fn(coef, J, plan.synth[L], plan.src_scale[L], b0, *f)
+                fn(coef, J, S, plan.quadrature.src_scale[L], b0, *f)
         return f
 
     def _near_on_the_fly(self, s: np.ndarray) -> np.ndarray:
@@ -264,12 +260,13 @@ class BimSetup:
         M, N, p, plan = self.M, self.N, self.p, self.plan
         nodes = plan.near_grid.nodes
         Nq = nodes.shape[0]
-        tgt_i = np.nonzero(np.diff(plan.fly_ptr))[0]
+        tgt_i = np.nonzero(np.diff(plan.expansions.fly_ptr))[0]
         pts = (self.centers[tgt_i, None, :] + self.radii[tgt_i, None, None] * nodes[None])
         trac = np.zeros((tgt_i.size * Nq, 3))
         traction_expansion(np.ascontiguousarray(pts.reshape(-1, 3)),
                            np.ascontiguousarray(np.tile(nodes, (tgt_i.size, 1))),
-                           np.repeat(tgt_i, Nq).astype(np.int64), plan.fly_ptr, plan.fly_idx,
+                           np.repeat(tgt_i, Nq).astype(np.int64),
+                           plan.expansions.fly_ptr, plan.expansions.fly_idx,
                            self.centers, self.radii, expansion_coefficients(p, s), p, trac)
         out = np.zeros((M, 3 * N))
         trac = trac.reshape(tgt_i.size, 3 * Nq)

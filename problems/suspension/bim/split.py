@@ -119,6 +119,7 @@ class _Group(NamedTuple):
             return self.rotated.work
         if self.blocks is not None:
             return int(self.blocks.size)
+        assert self.factors is not None          # neither dense nor rotated: factored
         return int(2 * self.factors[0].size)
 
     def _coef(self, coef: np.ndarray) -> np.ndarray:
@@ -137,6 +138,7 @@ class _Group(NamedTuple):
             fn = apply_blocks if self.work > PARALLEL_WORK else apply_blocks_serial
             fn(self.blocks, self.ptr, self.src, c, acc)
         else:
+            assert self.factors is not None
             first, second, off, rank, length = self.factors
             fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
             fn(first, second, off, rank, length, self.ptr, self.fwd, self.src, c, acc)
@@ -154,6 +156,7 @@ class _Group(NamedTuple):
                   else apply_blocks_adjoint_serial)
             fn(self.blocks, self.src_ptr, self.order, self.tgt, acc_bar, part)
         else:
+            assert self.factors is not None
             first, second, off, rank, length = self.factors
             fn = apply_lowrank if self.work > PARALLEL_WORK else apply_lowrank_serial
             fn(second, first, off, rank, length, self.src_ptr, self.order, self.tgt,
@@ -198,7 +201,7 @@ class SplitBlocks:
         self.M, self.N = plan.M, plan.N
         self.far_degree, self.near_gap, self.rank_tol = int(far_degree), near_gap, rank_tol
         basis = plan.basis
-        tgt, src = plan.block_tgt, plan.block_src
+        tgt, src = plan.near.block_tgt, plan.near.block_src
         c, r = plan.centers, plan.radii
         dist = np.linalg.norm(c[tgt] - c[src], axis=1) / r[src]      # in source radii
         reach = (r[tgt] + r[src]) / r[src] + near_gap                # R0 of each pair
@@ -212,11 +215,12 @@ class SplitBlocks:
         else:
             length = np.array([basis.degree.size if q < 0 else int((basis.degree <= q).sum())
                                for q in degree], dtype=np.int64)
-            factors = _factor(plan.blocks, length, rank_tol)
+            factors = _factor(plan.near.blocks, length, rank_tol)
             self.groups = [_group(None, factors, np.arange(tgt.size), plan, basis.degree.size)]
             self.n_factored_blocks = int(tgt.size)
             self.mean_rank = float(factors[3].mean()) if tgt.size else 0.0
-            self.block_sizes, self.block_ranks = length, factors[3]
+            self.block_sizes: np.ndarray | None = length
+            self.block_ranks: np.ndarray | None = factors[3]
         self.n_full_pairs = int((degree < 0).sum())
         self.n_truncated_pairs = int(far.sum())
         self.pairs_per_degree = {int(q): int((degree == q).sum()) for q in np.unique(degree[far])}
@@ -230,7 +234,7 @@ class SplitBlocks:
         never assembled)."""
         basis = plan.basis
         self.groups = []
-        stack = plan.blocks
+        stack = plan.near.blocks
         for q in np.unique(degree):
             idx = np.nonzero(degree == q)[0]                     # still sorted by target
             n_q = basis.degree.size if q < 0 else int((basis.degree <= q).sum())
@@ -246,11 +250,11 @@ class SplitBlocks:
             # keeps its block, a far one keeps the rows and columns of degree <= q (a prefix:
             # the coefficients are ordered by degree)
             if q < 0:
-                blocks = np.ascontiguousarray(plan.blocks[idx])
+                blocks = np.ascontiguousarray(plan.near.blocks[idx])
             else:
                 blocks = np.empty((idx.size, n_q, n_q))
                 for k0 in range(0, idx.size, _CHUNK):
-                    blocks[k0:k0 + _CHUNK] = plan.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
+                    blocks[k0:k0 + _CHUNK] = plan.near.blocks[idx[k0:k0 + _CHUNK], :n_q, :n_q]
             self.groups.append(_group(blocks, None, idx, plan, n_q))
         self.n_factored_blocks, self.mean_rank = 0, 0.0
         self.block_sizes = self.block_ranks = None
@@ -363,18 +367,18 @@ def _group(blocks: np.ndarray | None, factors: tuple | None, idx: np.ndarray,
     on the first ``n_coef`` coefficients (their synthesis: the leading rows of the plan's
     ``block_synth``, a view when they are all of them)."""
     M = plan.M
-    t, s = plan.block_tgt[idx], np.ascontiguousarray(plan.block_src[idx])
+    t, s = plan.near.block_tgt[idx], np.ascontiguousarray(plan.near.block_src[idx])
     ptr = np.searchsorted(t, np.arange(M + 1)).astype(np.int64)
     order = np.argsort(s, kind="stable").astype(np.int64)            # for the transpose
     src_ptr = np.searchsorted(s[order], np.arange(M + 1)).astype(np.int64)
-    synth = np.ascontiguousarray(plan.block_synth[:n_coef])
-    synth_T = np.ascontiguousarray(plan.block_synth_T[:, :n_coef])
+    synth = np.ascontiguousarray(plan.near.block_synth[:n_coef])
+    synth_T = np.ascontiguousarray(plan.near.block_synth_T[:, :n_coef])
     return _Group(blocks, factors, ptr, s, np.arange(n_coef), synth, synth_T,
                   np.arange(idx.size, dtype=np.int64), order, src_ptr, np.ascontiguousarray(t),
                   rotated)
 
 
-def _factor(blocks: np.ndarray, length: np.ndarray, rank_tol: float) -> tuple:
+def _factor(blocks: np.ndarray | PlanBlocks, length: np.ndarray, rank_tol: float) -> tuple:
     """Block k's leading ``length[k] x length[k]`` part by its singular value decomposition,
     cut at ``rank_tol`` times its largest singular value, in the ragged layout of
     :func:`kernels.apply_lowrank`: ``(first, second, off, rank, length)``, ``first`` the
