@@ -189,6 +189,27 @@ def _fields(line: str, count: int) -> bool:
         return False
 
 
+def _check_header(path: Path, header: list[str]) -> None:
+    """Refuse a results.csv header of lcpbench (``run_id`` first) whose columns are
+    unknown, repeated or out of order: the row checksums cover the rows, not the header,
+    so an edited header would give every value another column's meaning. A header of
+    another program (no ``run_id`` first) is left to :meth:`RunStore.results`."""
+    if header[:1] != ["run_id"]:
+        return
+    unknown = [c for c in header if c not in RESULT_COLUMNS]
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    order = [RESULT_COLUMNS.index(c) for c in header if c in RESULT_COLUMNS]
+    swapped = next(((header[i], header[i + 1]) for i in range(len(order) - 1)
+                    if order[i] > order[i + 1]), None)
+    what = (f"unknown column {unknown[0]!r}" if unknown else
+            f"column {repeated[0]!r} appears twice" if repeated else
+            f"columns {swapped[0]!r} and {swapped[1]!r} are out of order" if swapped else None)
+    if what:
+        raise ValueError(f"{path}: its header was edited or corrupted ({what}), so its rows "
+                         "cannot be read by column; restore the header line "
+                         f"({','.join(RESULT_COLUMNS[:4])},...) or rerun into a new --out")
+
+
 class _Scan:
     """The lines of one CSV file of the store, sorted into good and bad.
 
@@ -321,7 +342,10 @@ class RunStore:
     def _scan_results(self) -> Optional[_Scan]:
         if not self.results_path.exists() or self.results_path.stat().st_size == 0:
             return None
-        return _Scan(self.results_path, "row_crc")
+        scan = _Scan(self.results_path, "row_crc")
+        if scan.starts.size and (scan.terminated or scan.starts.size > 1):
+            _check_header(self.results_path, next(csv.reader([scan.line(0)])))
+        return scan
 
     def _scan_history(self, results: Optional[_Scan]) -> Optional[_Scan]:
         """``history.csv``; its last line without newline is kept only when whole and when
