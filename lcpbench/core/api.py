@@ -250,6 +250,12 @@ def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
         return _close_at_last(ctx, Status.failed, str(exc))
     except StopSolver as exc:
         return _close_at_last(ctx, ctx.status or Status.max_iter, str(exc) or ctx.message)
+    except SystemExit as exc:  # sys.exit() inside a solve ends the solve, not the sweep
+        res = _close_at_last(ctx, Status.failed,
+                             f"SystemExit: solver {info.name!r} called sys.exit({exc.code!r}); "
+                             "a solver returns ctx.finish(x, w) and never exits the process")
+        res.info["traceback"] = traceback.format_exc(limit=3)
+        return res
     except Exception as exc:  # the sweep must never die for one solver
         tb = traceback.format_exc(limit=3)
         res = _close_at_last(ctx, Status.failed, f"{type(exc).__name__}: {exc}")

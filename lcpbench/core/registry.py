@@ -260,6 +260,10 @@ def _load_env_plugins() -> None:
                 spec.loader.exec_module(mod)
             else:
                 importlib.import_module(item)
+        except SystemExit as exc:     # sys.exit() at import must not end the command
+            raise PluginError(f"plugin {item!r} named in ${PLUGINS_ENV} called "
+                              f"sys.exit({exc.code!r}) while it was imported; a plugin module "
+                              "must only register its solvers, problems and scenes") from None
         except Exception as exc:
             raise PluginError(f"plugin {item!r} named in ${PLUGINS_ENV} failed to load: "
                               f"{type(exc).__name__}: {exc}") from exc
@@ -281,9 +285,9 @@ def _load(group: str) -> None:
     for ep in eps:
         try:
             ep.load()
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:     # sys.exit() at import included
             raise PluginError(f"plugin {ep.name!r} ({ep.value}) of {group!r} failed to "
-                              f"load: {type(exc).__name__}: {exc}") from exc
+                              f"load: {type(exc).__name__}: {exc}") from None
 
 
 def solvers() -> dict[str, SolverInfo]:

@@ -221,7 +221,7 @@ def _safe_perform(run, lcp, ref, timeout):
     t0 = time.monotonic()
     try:
         return perform(run, lcp, ref, timeout)
-    except Exception as exc:  # the framework itself failed on this run: record it
+    except (Exception, SystemExit) as exc:  # the framework (or a plugin's sys.exit) failed
         return _failure_row(run, lcp, "failed", f"{type(exc).__name__}: {exc}",
                             time.monotonic() - t0), None
 
