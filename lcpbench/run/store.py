@@ -52,6 +52,7 @@ RESULT_COLUMNS = [
     "run_id", "kind", "problem", "problem_params", "family", "instance", "instance_index", "n",
     "solver", "solver_name", "solver_params", "mvp_only", "multifidelity", "reference_solver",
     "tol", "stop", "repeat", "status", "message", "solved", "false_convergence",
+    "float64_floor",
     "claimed_kkt_abs", "verified_kkt_abs", "verified_kkt_inf", "verified_comp_gap",
     "verified_infeas_x", "verified_infeas_w", "threshold", "ref_err_w", "ref_err_objective",
     "ref_err_w_others",
