@@ -116,3 +116,18 @@ def test_a_solver_that_exits_is_a_failed_row_and_the_sweep_goes_on(tmp_path):
     assert called["message"].str.contains("called sys.exit\\(0\\)").all()
     assert (rows[rows["solver"] == "bb-pgd"]["status"] == "converged").all()
     assert (tmp_path / "r" / "report.html").exists()
+
+
+def test_simulate_exits_1_when_every_simulation_stopped_at_step_0(tmp_path):
+    plugin = os.path.join(os.path.dirname(__file__), "misbehave_plugin.py")
+    args = ("simulate", "--scene", "lattice:m=2,model=rpy", "--steps", "3", "--quiet")
+    out = _lcpbench(*args, "--solver", "test-misbehave:mode=nan", "--out", "s1",
+                    env={"LCPBENCH_PLUGINS": plugin}, cwd=tmp_path)
+    assert out.returncode == 1 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1] == (
+        "lcpbench simulate: error: every simulation stopped at step 0 (simulation stopped: "
+        "step 0: the contact forces are not finite; the simulation cannot continue from a "
+        "diverged solve); nothing was simulated")
+    both = _lcpbench(*args, "--solver", "test-misbehave:mode=nan", "--solver", "bb-pgd",
+                     "--out", "s2", env={"LCPBENCH_PLUGINS": plugin}, cwd=tmp_path)
+    assert both.returncode == 0, both.stderr         # one simulation went on: not a failure
