@@ -126,6 +126,10 @@ def test_siconos_sparse_block_storage(tmp_path):
     ("2\n0\n2\n2\n2\t2\n1 x 0 1\n1 1\n", "expected a number for dense entry 1, found 'x'"),
     ("2\n2\n2\n2\n4\nCSparse\ntriplet: 2-by-2, nzmax: 1 nnz: 1\n    0 0 : 1\n1 1\n",
      "half triplet"),
+    ("30000\n1\n30000\n30000\n0\n" + "0\n" * 30000,
+     "the 30000x30000 matrix takes 6.7 GiB as a dense matrix, over the read budget"),
+    ("100000\n0\n100000\n100000\n100000 100000\n1\n",
+     "matrix takes 74.5 GiB as a dense matrix, over the read budget of 2.0 GiB"),
     (("2\n2\n2\n2\n2\nCSparse\n2-by-2, nzmax: 1 nnz: 1\n    col 0 : locations 0 to 0\n"
       "      0 : 1\n    col 5 : locations 1 to 0\n1 1\n"), "expected 'col 1 : locations"),
 ])
