@@ -380,7 +380,10 @@ class RunStore:
         if scan is None or not scan.dirty:
             return
         if scan.bad:
-            with open(str(path) + ".corrupt", "a", encoding="utf-8", newline="") as fh:
+            corrupt = Path(str(path) + ".corrupt")
+            refuse_link(corrupt)
+            fd = os.open(corrupt, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+            with open(fd, "a", encoding="utf-8", newline="") as fh:
                 fh.write("".join(text + "\n" for _, _, text in scan.bad))
                 fh.flush()
                 os.fsync(fh.fileno())
