@@ -323,7 +323,11 @@ class RunStore:
         if self.path.exists() and not self.path.is_dir():
             raise NotADirectoryError(f"run store {str(self.path)!r} exists and is not a folder; "
                                      "choose another --out")
-        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot create the run store folder ({exc.strerror}); "
+                          "choose another --out", str(self.path)) from None
         self.results_path = self.path / "results.csv"
         self.history_path = self.path / "history.csv"
         self.meta_path = self.path / "meta.json"
