@@ -125,6 +125,8 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, ImportError) and getattr(exc, "name", None):
         msg = f"{msg}; install it (pip install -e \".[test]\" has every optional dependency)"
     elif isinstance(exc, OSError) and getattr(exc, "filename", None) and exc.strerror:
-        msg = f"{exc.filename}: {exc.strerror}" + _OS_HINTS.get(exc.errno or 0, "")
+        plain = exc.errno is not None and exc.strerror == os.strerror(exc.errno)
+        msg = f"{exc.filename}: {exc.strerror}" + (_OS_HINTS.get(exc.errno or 0, "") if plain
+                                                   else "")   # a message of its own says it
     return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
 
