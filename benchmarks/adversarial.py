@@ -5,6 +5,7 @@ Usage::
     python benchmarks/adversarial.py --group accuracy --cases 250      # 2,000 runs
     python benchmarks/adversarial.py --group scaling --cases 250       # 2,000 runs
     python benchmarks/adversarial.py --group operators --cases 200     # 2,000 runs
+    python benchmarks/adversarial.py --group metadata --cases 2000     # 2,000 reads
     python benchmarks/adversarial.py --group accuracy --cases 4 --solvers mono-pqn  # a slice
 
 Two groups of generators, outside ``benchmarks/fuzz.py``'s distribution:
@@ -39,6 +40,15 @@ so the framework's dense copy of a matrix-free A is exercised):
 * ``mutating``: an SPD operator applied by ``cho_solve(..., overwrite_b=True)``, which
   writes into its input, planted;
 * ``slow``: an SPD operator that sleeps 2 ms per product, planted.
+
+``metadata`` (one flipped bit in the metadata of a stored set; kind ``i mod 3``): a small
+set (two instances, a low with its ``cost_ratio``, a reference) is written with
+``SetWriter`` and one bit is flipped near an attribute of the root (``root``: format,
+version, title, generator, ...), of an instance or a low (``instance``: ``M``, ``step``,
+``cost_ratio``, ``sha256:*``) or of the reference (``reference``: solvers, kkt_abs); the
+set is then read with ``read_set``. Outcomes: ``refused`` (a ``StoredSetError``), ``silent``
+(it loaded: a changed bit went unnoticed) or ``crash`` (any other exception; a crash of the
+HDF5 library would end the script).
 
 Counted besides the claims: ``crash`` (an exception escaped ``lcpbench.solve``) and
 ``hang`` (a solve took longer than twice its time budget plus 5 s).
@@ -79,7 +89,14 @@ from lcpbench.problems.synthetic import random_spd_matrix  # noqa: E402
 
 GROUPS = {"accuracy": ("float32", "mixed", "gmres", "cg-float32"),
           "scaling": ("spike", "diagonal", "psd-planted", "tiny-eig"),
-          "operators": ("ill-definite", "nonsymmetric", "duplicated", "mutating", "slow")}
+          "operators": ("ill-definite", "nonsymmetric", "duplicated", "mutating", "slow"),
+          "metadata": ("root", "instance", "reference")}
+#: Attribute names whose neighbourhood a ``metadata`` case flips a bit in, per kind.
+METADATA_NEEDLES = {"root": (b"lcpbench.set", b"version", b"title", b"generator",
+                             b"cost_convention", b"created"),
+                    "instance": (b"cost_ratio", b"sha256:", b"step", b"t_mvp"),
+                    "reference": (b"solvers", b"kkt_abs", b"disagreement", b"accepted")}
+_METADATA_SET: dict[int, bytes] = {}
 #: Solvers that need the dense A, run on the ``operators`` group besides the MVP-only ones.
 DENSE_EXTRA = ("pgs", "lemke")
 #: Seconds a product of the ``slow`` kind sleeps.
@@ -245,6 +262,69 @@ def operators_case(i: int, seed: int) -> tuple[lcpbench.LCP, dict]:
     return lcp, {"kind": kind, "solvable": True, "x0": _start(rng, n, i // 5 * 4)}
 
 
+def _metadata_set(seed: int) -> bytes:
+    """The bytes of the small stored set the ``metadata`` cases flip bits of (made once)."""
+    if seed not in _METADATA_SET:
+        import tempfile
+
+        from lcpbench.sets import SetWriter
+
+        rng = np.random.default_rng([seed, 4])
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "meta.h5")
+            with SetWriter(path, title="adversarial", description="bit flips",
+                           generator="benchmarks/adversarial.py --group metadata") as w:
+                for k in range(2):
+                    A = random_spd_matrix(rng, 6, 100.0)
+                    b = _planted(rng, A)
+                    w.write_instance(f"step{k:05d}", A, b,
+                                     low={"p4": (A + 1e-3 * np.eye(6), 0.1, {"p": 4})},
+                                     reference={"x": np.zeros(6), "w": b, "kkt_abs": 0.0,
+                                                "solvers": ["clarabel", "proxqp"]},
+                                     attrs={"step": k, "M": 8, "t_mvp_high": 0.01})
+            with open(path, "rb") as fh:
+                _METADATA_SET[seed] = fh.read()
+    return _METADATA_SET[seed]
+
+
+def metadata_case(i: int, seed: int) -> tuple[str, str, str]:
+    """``(kind, outcome, detail)`` of case ``i`` of the ``metadata`` group."""
+    import tempfile
+
+    from lcpbench.sets import StoredSetError, read_set
+
+    rng = np.random.default_rng([seed, i, 5])
+    kind = GROUPS["metadata"][i % 3]
+    data = _metadata_set(seed)
+    spots = [pos for needle in METADATA_NEEDLES[kind]
+             for start in _occurrences(data, needle)
+             for pos in range(max(0, start - 16), min(len(data), start + len(needle) + 16))]
+    pos, bit = int(spots[int(rng.integers(len(spots)))]), int(rng.integers(8))
+    flipped = bytearray(data)
+    flipped[pos] ^= 1 << bit
+    where = f"case {i}: byte {pos} bit {bit}"
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "flipped.h5")
+        with open(path, "wb") as fh:
+            fh.write(bytes(flipped))
+        try:
+            lcps = read_set(path)
+        except StoredSetError as exc:
+            text = str(exc)
+            return kind, ("refused" if "\n" not in text else "crash"), f"{where}: {text[:200]}"
+        except Exception:
+            return kind, "crash", f"{where}: {traceback.format_exc(limit=3)}"
+    return kind, "silent", f"{where}: loaded {len(lcps)} instance(s)"
+
+
+def _occurrences(data: bytes, needle: bytes) -> list[int]:
+    out, at = [], data.find(needle)
+    while at >= 0:
+        out.append(at)
+        at = data.find(needle, at + 1)
+    return out
+
+
 def _start(rng: np.random.Generator, n: int, i: int) -> np.ndarray:
     which = STARTS[(i // 4) % len(STARTS)]
     x0 = np.zeros(n)
@@ -284,13 +364,22 @@ def classify(res: lcpbench.SolveResult, lcp: lcpbench.LCP, solvable: bool) -> st
 
 
 def group_solvers(group: str) -> list[str]:
-    """The solvers a group runs: the MVP-only ones, and the dense ones on ``operators``."""
+    """The solvers a group runs: the MVP-only ones, and the dense ones on ``operators``;
+    the ``metadata`` group runs the reader only."""
+    if group == "metadata":
+        return ["(reader)"]
     return mvp_solvers() + (list(DENSE_EXTRA) if group == "operators" else [])
 
 
 def run_case(args: tuple) -> list[tuple[str, str, str, str]]:
     """``(kind, solver, outcome, detail)`` for each solver on case ``i`` of ``group``."""
     i, seed, group, only, max_emvps, max_seconds = args
+    if group == "metadata":
+        t0 = time.perf_counter()
+        kind, outcome, detail = metadata_case(i, seed)
+        if time.perf_counter() - t0 > 2 * max_seconds + 5:
+            outcome = "hang"
+        return [(kind, "(reader)", outcome, detail)]
     make = {"accuracy": accuracy_case, "scaling": scaling_case, "operators": operators_case}
     try:
         lcp, meta = make[group](i, seed)
@@ -343,7 +432,7 @@ def main() -> int:
             for kind, name, outcome, detail in rows:
                 counts[(name, outcome)] += 1
                 counts[(kind, outcome)] += 0
-                if outcome in ("refuted", "false-infeasible", "crash", "hang"):
+                if outcome in ("refuted", "false-infeasible", "crash", "hang", "silent"):
                     problems.append(f"{name} on {kind} {detail}")
     return report(args, counts, problems)
 
@@ -354,12 +443,12 @@ def report(args, counts: Counter, problems: list[str]) -> int:
             f"{args.seed}), tol 1e-8, paper's stop rule, budget {args.max_emvps:g} E-MVPs and "
             f"{args.max_seconds:g} s per solve")
     outcomes = ("converged", "refuted", "infeasible", "false-infeasible", "other", "crash",
-                "hang")
+                "hang", "refused", "silent")
     names = [n for n in group_solvers(args.group) if any(counts[(n, o)] for o in outcomes)]
     return print_outcomes(head, counts, names, {o: o for o in outcomes}, problems=problems,
                           bad={"refuted": "refuted converged",
                                "false-infeasible": "false infeasible", "crash": "crashes",
-                               "hang": "hangs"})
+                               "hang": "hangs", "silent": "silent bit flips"})
 
 
 if __name__ == "__main__":

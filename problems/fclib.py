@@ -24,6 +24,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from lcpbench import LCP
+from lcpbench.sets import StoredSetError, read_budget
+from lcpbench.sets.guard import ReadBudget, Where, check_links, dataset_bytes, hard_child
 
 from .formats import PathLike, UnsupportedProblem, symmetric_lcp
 
@@ -33,21 +35,60 @@ __all__ = ["read_fclib_local", "write_fclib_local", "FCLIB_DEFAULT_SYMMETRIZE_RT
 FCLIB_DEFAULT_SYMMETRIZE_RTOL = 1e-6
 
 
-def _h5_scalar_int(g: h5py.Group, key: str, where: str) -> int:
-    if key not in g:
-        raise ValueError(f"{where}: dataset {key!r} is missing")
-    return int(np.asarray(g[key][()]).reshape(-1)[0])
+class _Guard:
+    """The stored-set reader's checks (:mod:`lcpbench.sets.guard`) for one FCLIB file: every
+    dataset is checked (no external storage, real, declared bytes stored, within the read
+    budget) before it is read, and each failure is a one-line ValueError."""
+
+    def __init__(self, path: Path):
+        self.where = Where(path)
+        self.size = path.stat().st_size
+        self.budget = ReadBudget(read_budget())
+
+    def take(self, nbytes: float, what: str) -> None:
+        """Count ``nbytes`` an allocation of ``what`` needs against the read budget."""
+        try:
+            self.budget.take(int(min(nbytes, 2 ** 62)), self.where, what)
+        except StoredSetError as exc:
+            raise ValueError(str(exc)) from None
+
+    def read(self, g: h5py.Group, key: str, where: str) -> np.ndarray:
+        """Dataset ``key`` of ``g``, checked before it is read."""
+        try:
+            ds = hard_child(g, key, self.where, f"{where}/{key}")
+            if ds is None:
+                raise ValueError(f"{where}: dataset {key!r} is missing")
+            if not isinstance(ds, h5py.Dataset):
+                raise ValueError(f"{where}/{key} is a group, not a dataset")
+            self.budget.take(dataset_bytes(ds, key, self.size, self.where), self.where,
+                             f"{where}/{key}")
+            return np.asarray(ds[()])
+        except StoredSetError as exc:
+            raise ValueError(str(exc)) from None
+        except (OSError, RuntimeError, TypeError) as exc:
+            raise ValueError(f"{where}/{key}: cannot read it, the file is truncated or "
+                             f"corrupted ({exc})") from None
 
 
-def _read_fclib_matrix(g: h5py.Group, where: str) -> sp.spmatrix:
-    nzmax = _h5_scalar_int(g, "nzmax", where)
-    m, n, nz = (_h5_scalar_int(g, k, where) for k in ("m", "n", "nz"))
-    for key in ("p", "i", "x"):
-        if key not in g:
-            raise ValueError(f"{where}: dataset {key!r} is missing")
-    P = np.asarray(g["p"][()], dtype=np.int64).reshape(-1)
-    I = np.asarray(g["i"][()], dtype=np.int64).reshape(-1)
-    X = np.asarray(g["x"][()], dtype=np.float64).reshape(-1)
+def _h5_scalar_int(g: h5py.Group, key: str, where: str, guard: _Guard) -> int:
+    v = guard.read(g, key, where).reshape(-1)
+    if v.size != 1 or not np.isfinite(v[0]) or v[0] != np.round(v[0]):
+        raise ValueError(f"{where}/{key} must hold one integer, got {v.size} value(s)"
+                         + (f" ({v[0]})" if v.size else "") + "; the file is not a valid "
+                         "FCLIB problem")
+    return int(v[0])
+
+
+def _read_fclib_matrix(g: h5py.Group, where: str, guard: _Guard) -> sp.spmatrix:
+    nzmax = _h5_scalar_int(g, "nzmax", where, guard)
+    m, n, nz = (_h5_scalar_int(g, k, where, guard) for k in ("m", "n", "nz"))
+    if m < 0 or n < 0:
+        raise ValueError(f"{where}: m = {m} and n = {n} must be >= 0")
+    # the sparse matrix's index arrays hold m + 1 and n + 1 entries whatever the data
+    guard.take(8.0 * (m + n + 2) * 3, f"{where} (index arrays of an {m} x {n} matrix)")
+    P = guard.read(g, "p", where).astype(np.int64).reshape(-1)
+    I = guard.read(g, "i", where).astype(np.int64).reshape(-1)
+    X = guard.read(g, "x", where).astype(np.float64).reshape(-1)
     try:
         if nz >= 0:                     # triplet: i rows, p columns (CSparse convention)
             return sp.coo_matrix((X[:nz], (I[:nz], P[:nz])), shape=(m, n)).tocsr()
@@ -104,7 +145,12 @@ def read_fclib_local(path: PathLike, *,
         f = h5py.File(p, "r")
     except OSError as exc:
         raise ValueError(f"{p}: cannot open as HDF5 ({exc}); is it an FCLIB file?") from None
+    guard = _Guard(p)
     with f:
+        try:            # no external or soft link is followed, none nested beyond the layout
+            check_links(f, guard.where, depth=3)
+        except StoredSetError as exc:
+            raise ValueError(str(exc)) from None
         if "fclib_local" not in f:
             kind = ("a global problem (/fclib_global)" if "fclib_global" in f
                     else f"groups {sorted(f.keys())}")
@@ -119,20 +165,20 @@ def read_fclib_local(path: PathLike, *,
             raise UnsupportedProblem(f"{where} has equality constraints (V, R); its normal "
                                      "block is not a plain LCP, so lcpbench does not import it",
                                      "equality constraints")
-        d = _h5_scalar_int(g, "spacedim", where)
+        d = _h5_scalar_int(g, "spacedim", where, guard)
         if d not in (2, 3):
             raise ValueError(f"{where}/spacedim is {d}; FCLIB uses 2 or 3")
         if "W" not in g:
             raise ValueError(f"{where}/W is missing")
-        W = _read_fclib_matrix(g["W"], f"{where}/W")
+        W = _read_fclib_matrix(g["W"], f"{where}/W", guard)
         if W.shape[0] != W.shape[1] or W.shape[0] % d:
             raise ValueError(f"{where}/W has shape {W.shape}; it must be square with a size "
                              f"divisible by spacedim = {d}")
         vec = g.get("vectors")
         if vec is None or "q" not in vec or "mu" not in vec:
             raise ValueError(f"{where}/vectors must hold q and mu")
-        q = np.asarray(vec["q"][()], dtype=np.float64).reshape(-1)
-        mu = np.asarray(vec["mu"][()], dtype=np.float64).reshape(-1)
+        q = guard.read(vec, "q", f"{where}/vectors").astype(np.float64).reshape(-1)
+        mu = guard.read(vec, "mu", f"{where}/vectors").astype(np.float64).reshape(-1)
         nc = W.shape[0] // d
         if q.shape[0] != W.shape[0] or mu.shape[0] != nc:
             raise ValueError(f"{where}/vectors: q has {q.shape[0]} entries and mu {mu.shape[0]}; "

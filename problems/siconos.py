@@ -48,6 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from lcpbench import LCP
+from lcpbench.sets import human_bytes, read_budget
 
 from .formats import PathLike, UnsupportedProblem, symmetric_lcp
 
@@ -331,6 +332,12 @@ def _read_lcp(c: _Cursor) -> tuple[int, str, np.ndarray, np.ndarray]:
     if storage not in readers:
         raise c.fail(f"unknown storage type {storage} (0 dense, 1 sparse block, 2 sparse)")
     name, reader = readers[storage]
+    need, budget = 8 * size0 * size1, read_budget()
+    if need > budget:           # every storage is read into a dense n x n matrix
+        raise c.fail(f"the {size0}x{size1} matrix takes {human_bytes(need)} as a dense "
+                     f"matrix, over the read budget of {human_bytes(budget)}; if the file is "
+                     "trusted, raise it with LCPBENCH_READ_BUDGET (e.g. LCPBENCH_READ_BUDGET="
+                     "16G)")
     M = reader(c, size0, size1)
     q = np.array([c.float(f"q[{i}]") for i in range(size1)])
     return n, name, M, q

@@ -8,6 +8,7 @@ import ctypes
 import faulthandler
 import os
 import signal
+import sys
 import time
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ class MisbehaveParams:
     Parameters
     ----------
     mode : str
-        sleep (ignores every budget), raise, nan, die (exit code 3), kill (SIGKILL to
+        sleep (ignores every budget), raise, nan, die (exit code 3), exit (sys.exit(0)), kill (SIGKILL to
         itself), segv (a real segmentation fault), slow (solves after a short sleep),
         wait (solves once the file named by ``LCPBENCH_TEST_RELEASE`` exists, for tests
         that must act while runs are certainly in flight; gives up after 120 s).
@@ -44,6 +45,8 @@ def misbehave(ctx, p):
         raise RuntimeError("boom on purpose")
     if p.mode == "die":
         os._exit(3)
+    if p.mode == "exit":
+        sys.exit(0)
     if p.mode == "kill":
         os.kill(os.getpid(), signal.SIGKILL)
     if p.mode == "segv":

@@ -3,6 +3,7 @@
 import json
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import warnings
@@ -136,6 +137,9 @@ def error_folder(tmp_path_factory):
     (root / "bad.toml").write_text("[[solver]\nname = 'bb-pgd'\n")
     data = shipped_sets()["lattice-bim-m3"].read_bytes()
     (root / "trunc.h5").write_bytes(data[:len(data) // 3])
+    flipped = bytearray(data)                   # one bit of the root's format attribute
+    flipped[data.index(b"lcpbench.set", 512)] ^= 1
+    (root / "flipped.h5").write_bytes(bytes(flipped))
     (root / "mine").mkdir()
     (root / "mine" / "notes.txt").write_text("the user's own file\n")
     specs = ",".join(f'"planted:count=1,seed={i}"' for i in range(150_000))
@@ -147,6 +151,12 @@ def error_folder(tmp_path_factory):
     code = main(["run", "--problem", "tiny", "--solver", "bb-pgd", "--out", str(root / "store"),
                  "--quiet", "--no-report"])
     assert code == 0
+    shutil.copytree(root / "store", root / "swapped")
+    head, rest = (root / "swapped" / "results.csv").read_text().split("\n", 1)
+    columns = head.split(",")
+    i, j = columns.index("status"), columns.index("message")
+    columns[i], columns[j] = columns[j], columns[i]
+    (root / "swapped" / "results.csv").write_text(",".join(columns) + "\n" + rest)
     return root
 
 

@@ -126,6 +126,10 @@ def test_siconos_sparse_block_storage(tmp_path):
     ("2\n0\n2\n2\n2\t2\n1 x 0 1\n1 1\n", "expected a number for dense entry 1, found 'x'"),
     ("2\n2\n2\n2\n4\nCSparse\ntriplet: 2-by-2, nzmax: 1 nnz: 1\n    0 0 : 1\n1 1\n",
      "half triplet"),
+    ("30000\n1\n30000\n30000\n0\n" + "0\n" * 30000,
+     "the 30000x30000 matrix takes 6.7 GiB as a dense matrix, over the read budget"),
+    ("100000\n0\n100000\n100000\n100000 100000\n1\n",
+     "matrix takes 74.5 GiB as a dense matrix, over the read budget of 2.0 GiB"),
     (("2\n2\n2\n2\n2\nCSparse\n2-by-2, nzmax: 1 nnz: 1\n    col 0 : locations 0 to 0\n"
       "      0 : 1\n    col 5 : locations 1 to 0\n1 1\n"), "expected 'col 1 : locations"),
 ])
@@ -292,3 +296,51 @@ def test_fclib_folder_skips_and_lists_what_it_cannot_import(tmp_path):
     np.testing.assert_array_equal(lcps[1].dense(), 2 * W[np.ix_([0, 3, 6, 9], [0, 3, 6, 9])])
     with pytest.raises(ValueError, match="equality constraints"):     # one file: an error
         info.func(make_params("fclib", info.params, {"path": str(vr)}))
+
+
+def _fclib(tmp_path: Path, name: str = "p.hdf5") -> Path:
+    W, q, mu = delassus(3, 4, 3)
+    return ex.write_fclib_local(tmp_path / name, W, q, mu, 3, storage="triplet")
+
+
+def test_fclib_a_small_file_declaring_a_huge_matrix_is_refused_before_allocating(tmp_path):
+    path = _fclib(tmp_path)
+    with h5py.File(path, "a") as f:
+        for key in ("m", "n"):
+            del f[f"fclib_local/W/{key}"]
+            f[f"fclib_local/W/{key}"] = np.array([4_000_000_000], dtype=np.int64)
+    assert path.stat().st_size < 100_000
+    with pytest.raises(ValueError, match="over the read budget") as exc:
+        ex.read_fclib_local(path)
+    assert "index arrays of an 4000000000 x 4000000000 matrix" in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_fclib_an_external_link_is_not_followed(tmp_path):
+    path, outside = _fclib(tmp_path), _fclib(tmp_path, "outside.hdf5")
+    with h5py.File(path, "a") as f:
+        del f["fclib_local/vectors/q"]
+        f["fclib_local/vectors/q"] = h5py.ExternalLink(str(outside), "/fclib_local/vectors/q")
+    with pytest.raises(ValueError, match="'q' is an external link to .*outside.hdf5"):
+        ex.read_fclib_local(path)
+
+
+def test_fclib_complex_q_is_refused_not_cast(tmp_path):
+    path = _fclib(tmp_path)
+    with h5py.File(path, "a") as f:
+        q = f["fclib_local/vectors/q"][()]
+        del f["fclib_local/vectors/q"]
+        f["fclib_local/vectors/q"] = q + 1j
+    with pytest.raises(ValueError, match=r"complex data \(complex128\)"):
+        ex.read_fclib_local(path)
+
+
+def test_fclib_an_empty_nz_is_a_one_line_error(tmp_path):
+    path = _fclib(tmp_path)
+    with h5py.File(path, "a") as f:
+        del f["fclib_local/W/nz"]
+        f["fclib_local/W/nz"] = np.zeros(0, dtype=np.int32)
+    with pytest.raises(ValueError) as exc:
+        ex.read_fclib_local(path)
+    assert str(exc.value) == (f"{path}: /fclib_local/W/nz must hold one integer, got 0 "
+                              "value(s); the file is not a valid FCLIB problem")

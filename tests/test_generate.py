@@ -8,6 +8,7 @@ from lcpbench.cli import main
 from lcpbench.core.operator import dense_uncounted
 from lcpbench.core.registry import make_scene
 from lcpbench.sets import instance_ids, read_instance, read_set, set_info
+from lcpbench.sets.seal import seal_image
 from lcpbench.workflows.generate import generate, instance_id, parse_lows, parse_steps
 
 SCENE = "lattice:m=3,model=rpy"
@@ -119,6 +120,7 @@ def test_corrupted_file_names_instance_and_dataset(tmp_path, small_set, capsys):
     path.write_bytes(small_set.read_bytes())
     with h5py.File(path, "a") as f:
         f["instances"][instance_id(21)]["low/self/A"][0, 0] += 1.0
+    path.write_bytes(seal_image(path.read_bytes()))      # past the whole-file checksum
     assert _gen(path) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1

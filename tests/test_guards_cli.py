@@ -85,3 +85,49 @@ def test_a_folder_given_as_a_stored_set_says_so(tmp_path, capsys):
                        f"the set's .h5 file, e.g. {folder / 'NAME.h5'}")
     assert main(["check", "--set", str(folder)]) == 2
     assert "a folder, not a stored set" in capsys.readouterr().err
+
+
+def test_plugin_that_exits_at_import_is_one_line_exit_2(tmp_path):
+    (tmp_path / "exiting_plugin.py").write_text("import sys\nsys.exit(0)\n")
+    out = _lcpbench("run", "--problem", "tiny", "--solver", "bb-pgd", "--out", "r",
+                    env={"LCPBENCH_PLUGINS": "exiting_plugin.py"}, cwd=tmp_path)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.strip() == ("lcpbench run: error: plugin 'exiting_plugin.py' named in "
+                                  "$LCPBENCH_PLUGINS called sys.exit(0) while it was imported; "
+                                  "a plugin module must only register its solvers, problems "
+                                  "and scenes")
+    assert not (tmp_path / "r" / "results.csv").exists()
+
+
+def test_a_solver_that_exits_is_a_failed_row_and_the_sweep_goes_on(tmp_path):
+    """sys.exit(0) inside a solve, in the runner's own process (no --timeout)."""
+    import pandas as pd
+
+    plugin = os.path.join(os.path.dirname(__file__), "misbehave_plugin.py")
+    out = _lcpbench("run", "--problem", "tiny", "--solver", "test-misbehave:mode=exit",
+                    "--solver", "bb-pgd", "--out", "r", "--quiet",
+                    env={"LCPBENCH_PLUGINS": plugin}, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    rows = pd.read_csv(tmp_path / "r" / "results.csv")
+    exits = rows[rows["solver"] == "test-misbehave:mode=exit"]
+    assert len(exits) == 7 and len(rows) == 14
+    called = exits[exits["n"] > 0]              # n = 0 is solved without calling the solver
+    assert len(called) >= 5 and set(called["status"]) == {"failed"}
+    assert called["message"].str.contains("called sys.exit\\(0\\)").all()
+    assert (rows[rows["solver"] == "bb-pgd"]["status"] == "converged").all()
+    assert (tmp_path / "r" / "report.html").exists()
+
+
+def test_simulate_exits_1_when_every_simulation_stopped_at_step_0(tmp_path):
+    plugin = os.path.join(os.path.dirname(__file__), "misbehave_plugin.py")
+    args = ("simulate", "--scene", "lattice:m=2,model=rpy", "--steps", "3", "--quiet")
+    out = _lcpbench(*args, "--solver", "test-misbehave:mode=nan", "--out", "s1",
+                    env={"LCPBENCH_PLUGINS": plugin}, cwd=tmp_path)
+    assert out.returncode == 1 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1] == (
+        "lcpbench simulate: error: every simulation stopped at step 0 (simulation stopped: "
+        "step 0: the contact forces are not finite; the simulation cannot continue from a "
+        "diverged solve); nothing was simulated")
+    both = _lcpbench(*args, "--solver", "test-misbehave:mode=nan", "--solver", "bb-pgd",
+                     "--out", "s2", env={"LCPBENCH_PLUGINS": plugin}, cwd=tmp_path)
+    assert both.returncode == 0, both.stderr         # one simulation went on: not a failure

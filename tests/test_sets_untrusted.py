@@ -1,9 +1,15 @@
-"""Untrusted stored sets (issue 31, item 6): every hostile file is a StoredSetError, found
-before the reader allocates, decompresses or opens anything beyond the file itself."""
+"""Untrusted stored sets: every hostile file is a StoredSetError, found before the reader
+allocates, decompresses or opens anything beyond the file itself.
+
+A hostile file can carry a matching whole-file checksum (anyone can compute one), so the
+files below are edited with h5py and sealed again (:func:`_edit`): the checks behind the
+checksum are what they exercise."""
 
 from __future__ import annotations
 
+import contextlib
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import h5py
@@ -12,6 +18,7 @@ import pytest
 
 import lcpbench.sets as st
 from lcpbench.sets.common import _digest
+from lcpbench.sets.seal import seal_image
 
 GEN = "lcpbench generate --scene test --out SET.h5"
 
@@ -32,9 +39,18 @@ def _set(path: Path, n: int = 5) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def _edit(path: Path) -> Iterator[h5py.File]:
+    """The set at ``path`` opened for editing with h5py, its file checksum made to match
+    the edited file afterwards."""
+    with h5py.File(path, "a") as f:
+        yield f
+    path.write_bytes(seal_image(path.read_bytes()))
+
+
 def _replace(path: Path, rel: str, make) -> None:
     """Replace dataset ``instances/0/<rel>`` by what ``make(group, name)`` creates."""
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         parent, _, name = f"instances/0/{rel}".rpartition("/")
         del f[parent][name]
         make(f[parent], name)
@@ -55,7 +71,7 @@ def test_a_tiny_file_declaring_a_huge_matrix_is_refused_before_allocating(tmp_pa
     """The issue's 11 KB file: A declared (60000, 60000) (26.8 GiB), no data stored."""
     path = _set(tmp_path / "huge.h5")
     n = 60_000
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         g = f["instances/0"]
         for rel in [k for k in g.attrs if k.startswith("sha256:")]:
             del g.attrs[rel]
@@ -73,7 +89,7 @@ def test_a_tiny_file_declaring_a_huge_matrix_is_refused_before_allocating(tmp_pa
 
 def test_declared_data_larger_than_the_file_is_refused(tmp_path):
     path = _set(tmp_path / "short.h5")
-    with h5py.File(path, "a") as f:             # 5 x 5 declared, stored nowhere
+    with _edit(path) as f:             # 5 x 5 declared, stored nowhere
         del f["instances/0/low/p4/A"]
         f["instances/0/low/p4"].create_dataset("A", shape=(5, 5), dtype="f8")
     _refused(path, "dataset 'low/p4/A'", "not stored in the file")
@@ -83,7 +99,7 @@ def _bomb(path: Path, n: int) -> Path:
     """Instance 0's A replaced by an n x n gzip-compressed identity (checksum right)."""
     _set(path)
     A = np.eye(n)
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         g = f["instances/0"]
         for rel in ("low", "reference", "x0"):
             if rel in g:
@@ -144,7 +160,7 @@ def test_an_external_link_to_a_whole_instance_or_group_is_not_followed(tmp_path)
     path = _set(tmp_path / "ext.h5")
     copy = tmp_path / "copy.h5"
     copy.write_bytes(path.read_bytes())
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         del f["instances/1"]
         f["instances/1"] = h5py.ExternalLink(str(copy), "/instances/1")
         del f["instances/0/low"]
@@ -190,7 +206,7 @@ def test_a_virtual_dataset_is_not_read(tmp_path):
 def test_complex_data_is_refused_not_cast(tmp_path):
     path = _set(tmp_path / "cplx.h5")
     A = _spd(0, 5)[0] + 1j * np.eye(5)
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         del f["instances/0/A"]
         f["instances/0/A"] = A
         f["instances/0"].attrs["sha256:A"] = _digest(A)
@@ -215,7 +231,7 @@ def test_complex_data_is_refused_not_cast(tmp_path):
 ])
 def test_every_bad_attribute_is_a_stored_set_error(tmp_path, where, key, value, words):
     path = _set(tmp_path / "attr.h5")
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         f[where].attrs[key] = value
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -233,7 +249,7 @@ def test_every_bad_attribute_is_a_stored_set_error(tmp_path, where, key, value, 
 ])
 def test_bad_root_attributes_are_stored_set_errors(tmp_path, key, value, words):
     path = _set(tmp_path / "root.h5")
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         f.attrs[key] = value
     for call in (st.read_set, st.set_info, st.instance_ids):
         with pytest.raises(st.StoredSetError, match=words):
@@ -252,7 +268,7 @@ def test_a_checksum_outside_the_layout_is_refused(tmp_path, rel):
     """A manifest entry may not reach another instance (an absolute path) or smuggle in a
     dataset the layout does not have."""
     path = _set(tmp_path / "layout.h5")
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         g = f["instances/0"]
         if not rel.startswith("/"):
             g[rel] = np.ones(5)
@@ -263,8 +279,99 @@ def test_a_checksum_outside_the_layout_is_refused(tmp_path, rel):
 
 def test_a_hard_link_cycle_or_deeper_nesting_is_refused(tmp_path):
     path = _set(tmp_path / "cycle.h5")
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         f["instances/0/low/loop"] = f["instances/0"]          # a hard link to its ancestor
         f["instances/1"].create_group("reference/deeper/still")
     _refused(path, "dataset 'low/loop/low'", "nested deeper")
     _refused(path, "dataset 'reference/deeper/still'", "nested deeper", instance="1")
+
+
+def _every_bit_of(data: bytes, needle: bytes, around: int = 24) -> list[tuple[int, int]]:
+    """(byte, bit) of every bit within ``around`` bytes of each occurrence of ``needle``."""
+    spots, start = set(), data.find(needle)
+    while start >= 0:
+        spots.update(range(max(0, start - around), min(len(data), start + len(needle) + around)))
+        start = data.find(needle, start + 1)
+    return [(pos, bit) for pos in sorted(spots) for bit in range(8)]
+
+
+@pytest.mark.parametrize("needle", [b"lcpbench.set", b"generator", b"cost_ratio", b"solvers"])
+def test_every_flipped_bit_of_the_metadata_is_a_stored_set_error(tmp_path, needle):
+    """Root attributes, a low's cost_ratio, the reference's solvers: no flip loads."""
+    path = _set(tmp_path / "meta.h5")
+    data = path.read_bytes()
+    flips = _every_bit_of(data, needle)
+    assert len(flips) > 300
+    bad = tmp_path / "flipped.h5"
+    for pos, bit in flips:
+        flipped = bytearray(data)
+        flipped[pos] ^= 1 << bit
+        bad.write_bytes(bytes(flipped))
+        with pytest.raises(st.StoredSetError) as exc:
+            st.read_set(bad)
+        assert str(bad) in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_the_whole_file_checksum_is_checked_before_hdf5_opens_the_file(tmp_path, monkeypatch):
+    path = _set(tmp_path / "s.h5")
+    data = bytearray(path.read_bytes())
+    data[data.index(b"lcpbench.set", 512)] ^= 4
+    path.write_bytes(bytes(data))
+
+    def no_hdf5(*args, **kwargs):
+        raise AssertionError("the HDF5 library was asked to open a corrupted set")
+
+    monkeypatch.setattr(h5py, "File", no_hdf5)
+    with pytest.raises(st.StoredSetError, match="file checksum mismatch"):
+        st.read_instance(path, "0")
+
+
+def test_a_damaged_checksum_line_is_refused(tmp_path):
+    path = _set(tmp_path / "s.h5")
+    data = bytearray(path.read_bytes())
+    data[3] ^= 1                                 # "lcpbench.set file-sha256 ..." itself
+    path.write_bytes(bytes(data))
+    with pytest.raises(st.StoredSetError, match="checksum line in its first 512 bytes"):
+        st.read_set(path)
+
+
+def _unsealed_copy(path: Path, out: Path) -> Path:
+    """``path`` as a set written before sets carried a file checksum (no user block)."""
+    with h5py.File(path, "r") as src, h5py.File(out, "w") as dst:
+        dst.attrs.update(dict(src.attrs))
+        group = dst.create_group("instances", track_order=True)
+        for name in src["instances"]:
+            src.copy(src["instances"][name], group, name=name)
+    return out
+
+
+def test_a_set_without_the_file_checksum_loads_with_a_warning_and_can_be_sealed(tmp_path):
+    sealed = _set(tmp_path / "new.h5")
+    old = _unsealed_copy(sealed, tmp_path / "old.h5")
+    with pytest.warns(UserWarning, match="written before stored sets carried a file checksum"):
+        before = st.read_set(old)
+    st.seal_set(old)
+    assert old.read_bytes().startswith(b"lcpbench.set file-sha256 ")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        after = st.read_set(old)
+    assert [lcp.meta["instance"] for lcp in after] == ["0", "1"]
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a.b, b.b)
+        assert a.meta.get("low") == b.meta.get("low")
+    assert after[0].meta["low"]["p4"]["cost_ratio"] == 0.1
+    flipped = bytearray(old.read_bytes())
+    flipped[flipped.index(b"cost_ratio") + 40] ^= 1
+    old.write_bytes(bytes(flipped))
+    with pytest.raises(st.StoredSetError, match="file checksum mismatch"):
+        st.read_set(old)
+
+
+def test_resuming_a_set_without_the_file_checksum_adds_it(tmp_path):
+    old = _unsealed_copy(_set(tmp_path / "new.h5"), tmp_path / "old.h5")
+    with st.SetWriter(old, title="t", description="d", generator=GEN) as w:
+        assert w.ids() == ["0", "1"]
+        w.write_instance("2", *_spd(2, 5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert [lcp.meta["instance"] for lcp in st.read_set(old)] == ["0", "1", "2"]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import textwrap
+from collections.abc import Iterator
 from pathlib import Path
 
 import h5py
@@ -17,6 +19,7 @@ import lcpbench.sets as st
 import lcpbench.sets.write
 from lcpbench.core.registry import get_problem
 from lcpbench.core.specs import make_params
+from lcpbench.sets.seal import seal_image
 
 GEN = "lcpbench generate --scene test --out SET.h5"
 
@@ -53,6 +56,15 @@ def write_set(path: Path, ids=("0", "1", "2")) -> dict:
                                     "scene": {"phi": 0.3}, "tags": ["a", "b"]})
             data[iid] = (A, b, low, x0, ref)
     return data
+
+
+@contextlib.contextmanager
+def _edit(path: Path) -> Iterator[h5py.File]:
+    """The set opened for editing with h5py, its file checksum made to match afterwards,
+    so that the checks behind the checksum are the ones exercised."""
+    with h5py.File(path, "a") as f:
+        yield f
+    path.write_bytes(seal_image(path.read_bytes()))
 
 
 def test_round_trip_preserves_everything(tmp_path):
@@ -151,6 +163,9 @@ def test_flipped_byte_is_a_checksum_error(tmp_path, dataset):
     path = tmp_path / "set.h5"
     write_set(path)
     _flip_byte(path, f"instances/0/{dataset}")
+    with pytest.raises(st.StoredSetError, match="file checksum mismatch"):
+        st.read_set(path)                      # the whole-file checksum finds it first
+    path.write_bytes(seal_image(path.read_bytes()))
     with pytest.raises(st.StoredSetError) as err:
         st.read_set(path)
     msg = str(err.value)
@@ -175,7 +190,7 @@ def test_truncated_file_is_a_clear_error(tmp_path):
 def test_deleted_dataset_is_a_clear_error(tmp_path, dataset):
     path = tmp_path / "set.h5"
     write_set(path)
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         del f[f"instances/0/{dataset}"]
     with pytest.raises(st.StoredSetError, match="dataset is missing") as err:
         st.read_set(path)
@@ -186,7 +201,7 @@ def test_deleted_dataset_is_a_clear_error(tmp_path, dataset):
 def test_shape_and_manifest_checks(tmp_path):
     path = tmp_path / "set.h5"
     write_set(path)
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         b = f["instances/1/b"][()]
         del f["instances/1/b"]
         f["instances/1/b"] = b[:-1]
@@ -207,7 +222,7 @@ def test_not_a_set_and_newer_version(tmp_path):
         st.SetWriter(other, title="t", description="d", generator="g").open()
     path = tmp_path / "set.h5"
     write_set(path, ids=("0",))
-    with h5py.File(path, "a") as f:
+    with _edit(path) as f:
         f.attrs["version"] = st.VERSION + 1
     with pytest.raises(st.StoredSetError, match="upgrade lcpbench"):
         st.read_set(path)
@@ -218,7 +233,7 @@ def test_not_a_set_and_newer_version(tmp_path):
 def test_half_written_group_is_deleted_and_reported(tmp_path):
     path = tmp_path / "set.h5"
     write_set(path, ids=("0",))
-    with h5py.File(path, "a") as f:        # what an interrupted write_instance leaves
+    with _edit(path) as f:        # what an interrupted write_instance leaves
         g = f.create_group("_incomplete/1")
         g["A"] = np.zeros((4, 4))
     assert st.set_info(path)["incomplete"] == ["1"]

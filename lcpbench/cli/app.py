@@ -9,6 +9,7 @@ stderr and exits with 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 from collections.abc import Sequence
@@ -107,12 +108,25 @@ def _silence_stdout() -> None:
         pass
 
 
+#: What to do after an OS error of a file the command writes, by errno.
+_OS_HINTS = {
+    errno.ENOSPC: "; free space (or choose another --out) and rerun the same command: what "
+                  "was finished is kept and the run resumes",
+    errno.EDQUOT: "; free space within your quota and rerun the same command to resume",
+    errno.EACCES: "; choose a folder you can write to (--out)",
+    errno.EPERM: "; choose a folder you can write to (--out)",
+    errno.EROFS: "; the file system is read-only: choose a folder on a writable one (--out)",
+}
+
+
 def _one_line(exc: BaseException) -> str:
     """The exception's message on one line (a missing module gets the install hint)."""
     msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
     if isinstance(exc, ImportError) and getattr(exc, "name", None):
         msg = f"{msg}; install it (pip install -e \".[test]\" has every optional dependency)"
     elif isinstance(exc, OSError) and getattr(exc, "filename", None) and exc.strerror:
-        msg = f"{exc.filename}: {exc.strerror}"
+        plain = exc.errno is not None and exc.strerror == os.strerror(exc.errno)
+        msg = f"{exc.filename}: {exc.strerror}" + (_OS_HINTS.get(exc.errno or 0, "") if plain
+                                                   else "")   # a message of its own says it
     return "; ".join(part.strip() for part in str(msg).splitlines() if part.strip())
 

@@ -7,7 +7,7 @@ import sys
 from typing import Any, Optional
 
 from lcpbench.core import guards
-from lcpbench.core.registry import problem_estimate
+from lcpbench.core.registry import problem_estimate, scene_estimate
 from lcpbench.core.residuals import STOP_RULES
 
 __all__ = ["add_stop_options", "add_force_option", "add_spec_option", "guard_problem"]
@@ -41,6 +41,24 @@ def add_force_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true",
                    help="build and solve past the memory, time and sweep-size limits "
                         "(estimated before any work; see docs/errors.md)")
+
+
+def guard_scene(spec: str, *, force: bool = False) -> None:
+    """Refuse making scene ``spec`` past the memory and time limits (its registered estimate).
+
+    Raises
+    ------
+    lcpbench.core.guards.TooLarge
+        The estimate is over a limit and ``force`` is not set (the message names both).
+    """
+    try:
+        est = scene_estimate(spec)
+    except (KeyError, TypeError, ValueError):
+        return                  # a bad spec: the simulation's own checks name the mistake
+    if est is not None and not force:
+        msg = guards.refusal(spec, est, what="lower m")
+        if msg:
+            raise guards.TooLarge(msg)
 
 
 def guard_problem(command: str, label: str, name: str, params: Any, *,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lcpbench.cli.options import add_spec_option, add_stop_options
+from lcpbench.cli.options import add_force_option, add_spec_option, add_stop_options, guard_scene
 from lcpbench.core.defaults import EXAMPLE_SCENE, SIMULATE_SOLVER
 from lcpbench.workflows.regimes import DEFAULT_REGIME, PAPER_ONLINE_LOW, REGIMES
 
@@ -48,6 +48,7 @@ def add_simulate_parser(sub) -> None:
                         f"fidelity is {PAPER_ONLINE_LOW}); default: lcpbench's (recycling "
                         "and memory on). Recorded in meta.json and every row")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_force_option(p)
     p.set_defaults(func=cmd_simulate)
 
 
@@ -62,6 +63,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         simulate,
     )
 
+
+    guard_scene(str(args.scene), force=args.force)  # before the scene is made
     out = out_folder(args.out,
                      Path("reports") / f"simulate-{datetime.now().strftime('%Y%m%d-%H%M%S')}")
     check_not_foreign(out)

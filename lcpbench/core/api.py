@@ -27,7 +27,14 @@ from lcpbench.core.operator import (
     dense_uncounted,
 )
 from lcpbench.core.registry import get_solver, solvers
-from lcpbench.core.residuals import StopRule, all_residuals, kkt_abs, make_stop_rule
+from lcpbench.core.residuals import (
+    StopRule,
+    all_residuals,
+    floor_message,
+    kkt_abs,
+    make_stop_rule,
+    rounding_floor,
+)
 from lcpbench.core.result import SolveResult, Status
 from lcpbench.core.specs import make_params, parse_spec
 
@@ -250,6 +257,12 @@ def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
         return _close_at_last(ctx, Status.failed, str(exc))
     except StopSolver as exc:
         return _close_at_last(ctx, ctx.status or Status.max_iter, str(exc) or ctx.message)
+    except SystemExit as exc:  # sys.exit() inside a solve ends the solve, not the sweep
+        res = _close_at_last(ctx, Status.failed,
+                             f"SystemExit: solver {info.name!r} called sys.exit({exc.code!r}); "
+                             "a solver returns ctx.finish(x, w) and never exits the process")
+        res.info["traceback"] = traceback.format_exc(limit=3)
+        return res
     except Exception as exc:  # the sweep must never die for one solver
         tb = traceback.format_exc(limit=3)
         res = _close_at_last(ctx, Status.failed, f"{type(exc).__name__}: {exc}")
@@ -304,6 +317,12 @@ def _verified(ctx: SolverContext, run: LCP, x: np.ndarray, status: Status, messa
         verified = all_residuals(x, w_verified, run.b)
         # never 'converged' against the verification
         status, message = verify_claim(ctx, status, x, w_verified, message)
+        floor = rounding_floor(w_verified - run.b, run.b)
+        if ctx.threshold < floor:        # more digits asked for than float64 holds
+            verified["float64_floor"] = floor            # and the run is not 'solved'
+            if status == Status.converged:
+                message = floor_message(ctx.threshold, floor) + \
+                    (f" (solver: {message})" if message else "")
     except Exception as exc:  # the user's operator raised on the verifying product
         if status != Status.failed:       # an earlier failure keeps its own reason first
             message = (f"verification failed: {type(exc).__name__}: {exc}"
@@ -340,7 +359,8 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> S
         lofi_applications={k: op.applications for k, op in run.low.items()},
         iterations=ctx.iterations, time_s=res.time_s, mvp_time_s=mvp_time_s,
         history=ctx.monitor.frame(), claimed_kkt_abs=claimed, verified=verified,
-        solved=bool(verified["kkt_abs"] <= ctx.threshold), threshold=ctx.threshold,
+        solved=bool(verified["kkt_abs"] <= ctx.threshold and "float64_floor" not in verified),
+        threshold=ctx.threshold,
         solver=info.name, params=dataclasses.asdict(params), mvp_only=info.mvp_only,
         info={**ctx.info, **res.info, **work}, state=res.state)
 

@@ -34,6 +34,7 @@ __all__ = [
     "get_problem", "solvers", "problems",
     "SceneInfo", "register_scene", "scenes", "get_scene", "make_scene",
     "SetInfo", "register_set", "stored_sets", "PluginError", "problem_estimate",
+    "scene_estimate",
 ]
 
 
@@ -260,6 +261,10 @@ def _load_env_plugins() -> None:
                 spec.loader.exec_module(mod)
             else:
                 importlib.import_module(item)
+        except SystemExit as exc:     # sys.exit() at import must not end the command
+            raise PluginError(f"plugin {item!r} named in ${PLUGINS_ENV} called "
+                              f"sys.exit({exc.code!r}) while it was imported; a plugin module "
+                              "must only register its solvers, problems and scenes") from None
         except Exception as exc:
             raise PluginError(f"plugin {item!r} named in ${PLUGINS_ENV} failed to load: "
                               f"{type(exc).__name__}: {exc}") from exc
@@ -281,9 +286,9 @@ def _load(group: str) -> None:
     for ep in eps:
         try:
             ep.load()
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:     # sys.exit() at import included
             raise PluginError(f"plugin {ep.name!r} ({ep.value}) of {group!r} failed to "
-                              f"load: {type(exc).__name__}: {exc}") from exc
+                              f"load: {type(exc).__name__}: {exc}") from None
 
 
 def solvers() -> dict[str, SolverInfo]:
@@ -360,6 +365,9 @@ class SceneInfo:
     func: Callable
     params: type
     summary: str = ""
+    #: ``estimate(params) -> lcpbench.core.guards.Estimate`` of making the scene and a
+    #: step's LCP (optional; checked by ``lcpbench simulate`` before the scene is made).
+    estimate: Optional[Callable] = None
 
     def fidelity_axes(self):
         """The fidelity knobs the scene declares (a :class:`lcpbench.core.scene.FidelityAxes`),
@@ -367,7 +375,7 @@ class SceneInfo:
         return self.func(self.params()).fidelity_axes
 
 
-def register_scene(name: str, params: type):
+def register_scene(name: str, params: type, *, estimate: Optional[Callable] = None):
     """Decorator registering ``func(params) -> scene`` as scene family ``name``.
 
     Parameters
@@ -376,9 +384,22 @@ def register_scene(name: str, params: type):
         Kebab-case registry name (``lattice``).
     params : type
         Frozen dataclass of the scene's parameters, every field with a default.
+    estimate : callable, optional
+        ``estimate(params) -> lcpbench.core.guards.Estimate``: the memory and work of
+        making the scene and one step's LCP, so that ``lcpbench simulate`` refuses
+        oversized parameters before it makes anything.
     """
     return _registrar("scene", _SCENES, name, params, lambda func, summary: SceneInfo(
-        name, func, params, summary))
+        name, func, params, summary, estimate))
+
+
+def scene_estimate(spec: str):
+    """The registered estimate of scene ``spec`` (``NAME:key=value,...``), or None when the
+    scene registers none. Raises as :func:`make_scene` for an unknown scene or parameter."""
+    name, raw = parse_spec(spec)
+    info = get_scene(name)
+    params = make_params(name, info.params, raw)
+    return info.estimate(params) if info.estimate is not None else None
 
 
 def get_scene(name: str) -> SceneInfo:

@@ -91,6 +91,22 @@ def all_residuals(x: np.ndarray, w: np.ndarray, b: np.ndarray) -> dict:
     }
 
 
+def rounding_floor(Ax: np.ndarray, b: np.ndarray) -> float:
+    """``eps (||A x|| + ||b||)``: the smallest residual ``||min(x, A x + b)||`` that float64
+    resolves at ``x``, since forming ``A x + b`` rounds each entry by about ``eps`` times
+    its terms. ``||A x||`` stands for ``||A|| ||x||`` (a lower bound of it, so a tolerance
+    flagged as below the floor is certainly below it)."""
+    with np.errstate(over="ignore"):
+        return float(np.finfo(np.float64).eps * (_norm(Ax) + _norm(b)))
+
+
+def floor_message(threshold: float, floor: float) -> str:
+    """The message of a claim whose stop rule asks for more digits than float64 holds."""
+    return (f"reached the float64 floor, not the tolerance: the stop rule asks for "
+            f"||min(x, w)|| <= {threshold:.3g}, below eps (||A x|| + ||b||) = {floor:.3g}, "
+            "so float64 cannot show the residual meets it; scale the problem or loosen tol")
+
+
 @dataclass(frozen=True)
 class StopRule:
     """When an iterate counts as converged.

@@ -149,6 +149,7 @@ def result_fields(res) -> dict:
     v = res.verified
     return {
         "solved": bool(res.solved), "false_convergence": bool(res.false_convergence),
+        "float64_floor": "float64_floor" in v,
         "claimed_kkt_abs": res.claimed_kkt_abs, "verified_kkt_abs": v.get("kkt_abs"),
         "verified_kkt_inf": v.get("kkt_abs_inf"), "verified_comp_gap": v.get("comp_gap"),
         "verified_infeas_x": v.get("infeas_x"), "verified_infeas_w": v.get("infeas_w"),
@@ -221,7 +222,7 @@ def _safe_perform(run, lcp, ref, timeout):
     t0 = time.monotonic()
     try:
         return perform(run, lcp, ref, timeout)
-    except Exception as exc:  # the framework itself failed on this run: record it
+    except (Exception, SystemExit) as exc:  # the framework (or a plugin's sys.exit) failed
         return _failure_row(run, lcp, "failed", f"{type(exc).__name__}: {exc}",
                             time.monotonic() - t0), None
 
@@ -351,7 +352,7 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
     done = store.done_ids()
     todo = [r for r in p.runs if r.run_id not in done]
     counts = {"planned": len(p.runs), "kept": len(p.runs) - len(todo), "ran": 0, "failed": 0,
-              "timeout": 0, "false_convergence": 0}
+              "timeout": 0, "false_convergence": 0, "float64_floor": 0}
 
     def local_work(run: RunSpec):
         return _safe_perform(run, p.lcp(run), ref_of(run), timeout)
@@ -376,6 +377,8 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
             counts["failed"] += 1
         if row.get("false_convergence") in (True, "True"):
             counts["false_convergence"] += 1
+        if row.get("float64_floor") in (True, "True"):
+            counts["float64_floor"] += 1
         if on_row is not None:
             on_row(row)
         bar.update(1)
@@ -395,4 +398,6 @@ def execute(p: Plan, store: RunStore, *, executor: Optional[str] = None, jobs: i
 def describe_counts(counts: dict) -> str:
     return (f"{counts['ran']} run(s) done, {counts['kept']} kept from before; "
             f"{counts['failed']} not solved, {counts['timeout']} timed out, "
-            f"{counts['false_convergence']} false 'converged'")
+            f"{counts['false_convergence']} false 'converged'"
+            + (f", {counts['float64_floor']} with a tolerance below the float64 floor"
+               if counts.get("float64_floor") else ""))

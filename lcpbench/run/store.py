@@ -52,6 +52,7 @@ RESULT_COLUMNS = [
     "run_id", "kind", "problem", "problem_params", "family", "instance", "instance_index", "n",
     "solver", "solver_name", "solver_params", "mvp_only", "multifidelity", "reference_solver",
     "tol", "stop", "repeat", "status", "message", "solved", "false_convergence",
+    "float64_floor",
     "claimed_kkt_abs", "verified_kkt_abs", "verified_kkt_inf", "verified_comp_gap",
     "verified_infeas_x", "verified_infeas_w", "threshold", "ref_err_w", "ref_err_objective",
     "ref_err_w_others",
@@ -189,6 +190,27 @@ def _fields(line: str, count: int) -> bool:
         return False
 
 
+def _check_header(path: Path, header: list[str]) -> None:
+    """Refuse a results.csv header of lcpbench (``run_id`` first) whose columns are
+    unknown, repeated or out of order: the row checksums cover the rows, not the header,
+    so an edited header would give every value another column's meaning. A header of
+    another program (no ``run_id`` first) is left to :meth:`RunStore.results`."""
+    if header[:1] != ["run_id"]:
+        return
+    unknown = [c for c in header if c not in RESULT_COLUMNS]
+    repeated = sorted({c for c in header if header.count(c) > 1})
+    order = [RESULT_COLUMNS.index(c) for c in header if c in RESULT_COLUMNS]
+    swapped = next(((header[i], header[i + 1]) for i in range(len(order) - 1)
+                    if order[i] > order[i + 1]), None)
+    what = (f"unknown column {unknown[0]!r}" if unknown else
+            f"column {repeated[0]!r} appears twice" if repeated else
+            f"columns {swapped[0]!r} and {swapped[1]!r} are out of order" if swapped else None)
+    if what:
+        raise ValueError(f"{path}: its header was edited or corrupted ({what}), so its rows "
+                         "cannot be read by column; restore the header line "
+                         f"({','.join(RESULT_COLUMNS[:4])},...) or rerun into a new --out")
+
+
 class _Scan:
     """The lines of one CSV file of the store, sorted into good and bad.
 
@@ -301,7 +323,11 @@ class RunStore:
         if self.path.exists() and not self.path.is_dir():
             raise NotADirectoryError(f"run store {str(self.path)!r} exists and is not a folder; "
                                      "choose another --out")
-        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot create the run store folder ({exc.strerror}); "
+                          "choose another --out", str(self.path)) from None
         self.results_path = self.path / "results.csv"
         self.history_path = self.path / "history.csv"
         self.meta_path = self.path / "meta.json"
@@ -321,7 +347,10 @@ class RunStore:
     def _scan_results(self) -> Optional[_Scan]:
         if not self.results_path.exists() or self.results_path.stat().st_size == 0:
             return None
-        return _Scan(self.results_path, "row_crc")
+        scan = _Scan(self.results_path, "row_crc")
+        if scan.starts.size and (scan.terminated or scan.starts.size > 1):
+            _check_header(self.results_path, next(csv.reader([scan.line(0)])))
+        return scan
 
     def _scan_history(self, results: Optional[_Scan]) -> Optional[_Scan]:
         """``history.csv``; its last line without newline is kept only when whole and when
@@ -355,7 +384,10 @@ class RunStore:
         if scan is None or not scan.dirty:
             return
         if scan.bad:
-            with open(str(path) + ".corrupt", "a", encoding="utf-8", newline="") as fh:
+            corrupt = Path(str(path) + ".corrupt")
+            refuse_link(corrupt)
+            fd = os.open(corrupt, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+            with open(fd, "a", encoding="utf-8", newline="") as fh:
                 fh.write("".join(text + "\n" for _, _, text in scan.bad))
                 fh.flush()
                 os.fsync(fh.fileno())

@@ -17,8 +17,8 @@ from lcpbench.sets.common import (
                                   set_problem_name,
 )
 from lcpbench.sets.read import instance_ids, read_instance, read_set, set_info
-from lcpbench.sets.write import SetWriter
+from lcpbench.sets.write import SetWriter, seal_set
 
-__all__ = ["SetWriter", "StoredSetError", "read_set", "read_instance", "set_info",
+__all__ = ["SetWriter", "seal_set", "StoredSetError", "read_set", "read_instance", "set_info",
            "instance_ids", "parse_instances", "set_problem_name", "FORMAT", "VERSION",
            "COST_CONVENTION", "READ_BUDGET", "read_budget", "human_bytes"]

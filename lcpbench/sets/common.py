@@ -13,7 +13,9 @@ Layout (inspired by FCLIB's HDF5 problem files)::
                                    "sha256:<dataset>" for every dataset of the instance
 
 Integrity
-    Every dataset has a SHA-256 (of its dtype, shape and little-endian bytes) in the
+    The whole file (every byte after its 512-byte user block) has a SHA-256 in that user
+    block, checked before HDF5 parses the file (:mod:`lcpbench.sets.seal`), so attributes
+    and HDF5 headers are covered as well as data. Every dataset has a SHA-256 (of its dtype, shape and little-endian bytes) in the
     instance attrs; the set of ``sha256:*`` attrs is also the instance's manifest, so a
     deleted dataset is found as well as a changed one. :func:`read_set` and
     :func:`read_instance` check the file's ``format`` and ``version``, every dataset's

@@ -152,7 +152,7 @@ def dataset_bytes(ds: h5py.Dataset, rel: str, file_size: int, where: Where) -> i
             raise where.err(f"{human_bytes(raw)} of data declared, not stored in the file "
                             f"({human_bytes(stored)} stored, the file has "
                             f"{human_bytes(file_size)})", rel)
-        if offset is None or offset + raw > file_size:
+        if raw and (offset is None or offset + raw > file_size):   # empty data: no storage
             raise where.err(f"its {human_bytes(raw)} of data lie beyond the end of the file "
                             f"({human_bytes(file_size)}); the file is truncated or corrupted",
                             rel)

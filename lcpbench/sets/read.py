@@ -44,6 +44,7 @@ from lcpbench.sets.guard import (
     want_sha,
     want_str_list,
 )
+from lcpbench.sets.seal import check_seal, warn_unsealed
 
 __all__ = ["read_set", "read_instance", "set_info", "instance_ids"]
 
@@ -59,8 +60,9 @@ def _open(path: PathLike) -> h5py.File:
     if p.is_dir():
         raise StoredSetError(f"{p} is a folder, not a stored set; give the set's .h5 file, e.g. "
                              f"{p / 'NAME.h5'}", path=p)
+    sealed = check_seal(p)
     try:
-        return h5py.File(p, "r")
+        f = h5py.File(p, "r")
     except OSError as exc:
         if not h5py.is_hdf5(p):     # no HDF5 signature at all: another kind of file
             raise StoredSetError(f"{p}: not an HDF5 file (a {p.suffix or 'suffix-less'} file); "
@@ -68,6 +70,9 @@ def _open(path: PathLike) -> h5py.File:
                                  path=p) from None
         raise _err(p, f"cannot open the HDF5 file, it is truncated or corrupted ({exc})") \
             from None
+    if not sealed and f.attrs.get("format") == FORMAT:
+        warn_unsealed(p)
+    return f
 
 
 def _check_root(f: h5py.File, path: PathLike) -> dict:

@@ -43,9 +43,10 @@ from lcpbench.sets.common import (
     StoredSetError,
     _digest,
 )
-from lcpbench.sets.read import _check_root
+from lcpbench.sets.read import _check_root, read_set
+from lcpbench.sets.seal import USERBLOCK, check_seal, seal_image
 
-__all__ = ["SetWriter"]
+__all__ = ["SetWriter", "seal_set"]
 
 
 def _attr_value(key: str, value: Any) -> Any:
@@ -330,8 +331,9 @@ class SetWriter:
         target = self._target
         if not (target.exists() and target.stat().st_size > 0):
             self._buf = io.BytesIO()
-            self._f = h5py.File(self._buf, "w")
+            self._f = h5py.File(self._buf, "w", userblock_size=USERBLOCK)
             return
+        check_seal(target)
         self._buf = io.BytesIO(target.read_bytes())
         try:
             f = h5py.File(self._buf, "r+")
@@ -346,6 +348,23 @@ class SetWriter:
             raise StoredSetError(f"{self.path}: an HDF5 file that is not an lcpbench set "
                                  f"(no format={FORMAT!r} attribute); choose another path",
                                  path=self.path)
+        if f.userblock_size < USERBLOCK:
+            self._with_userblock()
+
+    def _with_userblock(self) -> None:
+        """Copy an image written before stored sets carried a file checksum into a new
+        image with the user block that holds it (same attributes, groups and order)."""
+        old = self.file
+        buf = io.BytesIO()
+        new = h5py.File(buf, "w", userblock_size=USERBLOCK)
+        new.attrs.update({k: old.attrs[k] for k in old.attrs})
+        for name in old:
+            group = new.create_group(name, track_order=True)
+            group.attrs.update({k: old[name].attrs[k] for k in old[name].attrs})
+            for child in old[name]:
+                old.copy(old[name][child], group, name=child)
+        old.close()
+        self._f, self._buf = new, buf
 
     def _prepare(self) -> bool:
         """Root attributes and groups of a new set, stale groups removed; True if changed."""
@@ -375,7 +394,7 @@ class SetWriter:
         HDF5 library can always go on writing to it)."""
         self.file.flush()
         assert self._buf is not None             # set with the file by open()
-        return self._buf.getvalue()
+        return seal_image(self._buf.getvalue())
 
     def _save(self, what: str, instance: Optional[str] = None, *, changed: bool = False) -> None:
         """Replace the file by the image (unless ``changed`` is False and they are equal);
@@ -536,3 +555,23 @@ class SetWriter:
         g.attrs["n"] = n
         for rel, (arr, _) in datasets.items():
             g.attrs[_SHA + rel] = _digest(arr)
+
+
+def seal_set(path: PathLike) -> None:
+    """Add the whole-file checksum to a stored set written before sets carried one.
+
+    Every dataset is verified against its own checksum first (:func:`read_set`), then the
+    set is rewritten atomically with the checksum in its user block
+    (:mod:`lcpbench.sets.seal`); its instances, data and attributes are unchanged. A set
+    that carries a checksum already is verified and left as it is.
+
+    Raises
+    ------
+    StoredSetError
+        The set fails a check of the reader; it is not rewritten.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        read_set(path, psd_check=False)
+        with SetWriter(Path(path), title="", description="", generator="") as w:
+            w._save("add the file checksum", changed=True)

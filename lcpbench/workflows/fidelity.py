@@ -71,17 +71,13 @@ def set_axes(path) -> FidelityAxes | None:
     ``lattice:m=3,model=bim``) through the scene registry; None for a set without one,
     or whose scene is not registered here.
     """
-    import h5py
-
     from lcpbench.core.registry import get_scene
+    from lcpbench.sets import StoredSetError, set_info
 
     try:
-        with h5py.File(path, "r") as f:
-            spec = f.attrs.get("scene")
-    except OSError:
+        spec = set_info(path).get("scene")     # the file checksum verified first
+    except (OSError, StoredSetError):
         return None
-    if isinstance(spec, bytes):
-        spec = spec.decode()
     if not isinstance(spec, str) or not spec.strip():
         return None
     try:

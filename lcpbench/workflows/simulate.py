@@ -55,7 +55,7 @@ from lcpbench.core.residuals import make_stop_rule
 from lcpbench.core.scene import Scene, StepRecord, step_scene
 from lcpbench.core.specs import make_params, parse_spec
 from lcpbench.run.runner import result_fields
-from lcpbench.run.store import RunStore
+from lcpbench.run.store import RunStore, refuse_link
 from lcpbench.workflows.checkpoint import (
     Checkpoint,
     checkpoint_path,
@@ -420,6 +420,7 @@ def _one_simulation(job: SimulationJob):
             return _stored_rows(store, prefix)
 
     def commit(row: dict, history, finished: bool) -> None:
+        refuse_link(job.ckpt_path)       # checkpoints/ inside the store, never through a link
         save_checkpoint(job.ckpt_path, Checkpoint(step=int(row["step"]),
                                                   config=run.for_solver(spec),
                                                   scene_state=scene.get_state(), row=row,

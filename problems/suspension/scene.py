@@ -49,6 +49,7 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 from scipy.spatial.distance import pdist
 
+from lcpbench.core.guards import Estimate
 from lcpbench.core.registry import register_scene
 from lcpbench.core.scene import FidelityAxes, StepRecord, step_scene
 from lcpbench.core.specs import Bounds, CheckedParams
@@ -543,13 +544,25 @@ class LatticeScene:
                 f"gamma={self.gamma:.4g} initial_pairs={self.initial_pairs}>")
 
 
-@register_scene("lattice", LatticeParams)
+def _lattice_estimate(params: LatticeParams) -> Estimate:
+    """Memory of making the lattice scene and one step's LCP, before making anything.
+
+    The configuration checks and the pair search hold arrays over all M^2 sphere pairs
+    (8 bytes a pair, with three such temporaries), and the RPY mobility is a dense 6M x 6M
+    matrix; a step's LCP has at most 3M contacts (n).
+    """
+    M = float(params.m) ** 3
+    held = 3 * 8.0 * M * M + (8.0 * (6 * M) ** 2 if params.model == "rpy" else 0.0)
+    return Estimate(instances=1, n=int(min(3 * M, 2 ** 62)), bytes=held)
+
+
+@register_scene("lattice", LatticeParams, estimate=_lattice_estimate)
 def lattice(params: LatticeParams) -> LatticeScene:
     """Spheres on an m x m x m lattice packed by an inward pull (the paper's appendix scene)."""
     return LatticeScene(params=params)
 
 
-@register_scene("paper-lattice", PaperLatticeParams)
+@register_scene("paper-lattice", PaperLatticeParams, estimate=_lattice_estimate)
 def paper_lattice(params: PaperLatticeParams) -> LatticeScene:
     """The lattice scene with the paper authors' gaps: 0.3a kept separation, spacing 2.5."""
     return LatticeScene(params=params)
