@@ -14,6 +14,7 @@ import pytest
 
 import lcpbench
 from lcpbench.cli import main
+from lcpbench.core.specs import describe_params
 
 
 def test_list_json_has_every_solver_and_problem_with_parameters(capsys):
@@ -30,12 +31,27 @@ def test_list_json_has_every_solver_and_problem_with_parameters(capsys):
     assert defaults
 
 
-def test_list_text_and_brief(capsys):
-    assert main(["list", "solvers", "--brief"]) == 0
+def test_list_is_brief_by_default_and_full_on_request(capsys):
+    assert main(["list", "solvers"]) == 0
     out = capsys.readouterr().out
     assert "mono-pqn" in out and "random-spd" not in out
+    assert "memory: int" not in out                     # no parameter lines
     assert main(["list", "problems"]) == 0
     assert "random-spd" in capsys.readouterr().out
+    assert main(["list"]) == 0
+    brief = capsys.readouterr().out.splitlines()
+    assert len(brief) < 80
+    assert "Every parameter: lcpbench list --full [solvers|problems|scenes]" in brief
+    assert main(["list", "--full"]) == 0
+    full = capsys.readouterr().out
+    assert len(full.splitlines()) > 2 * len(brief)
+    # every parameter of every listed solver, with its type and default
+    for name, info in lcpbench.list_solvers().items():
+        if info.listed:
+            for prm, typ, _, _ in describe_params(info.params):
+                assert f"      {prm}: {typ} = " in full, (name, prm)
+    assert main(["list", "--brief"]) == 0              # still accepted: the default
+    assert capsys.readouterr().out.splitlines() == brief
 
 
 def test_solve_json_rows_are_verified(capsys):
@@ -189,7 +205,7 @@ def test_dask_executor_without_dask_is_refused_up_front(tmp_path, monkeypatch, c
 
 
 def test_list_shows_whole_parameter_docs_in_plain_words(capsys):
-    assert main(["list"]) == 0
+    assert main(["list", "--full"]) == 0
     out = capsys.readouterr().out
     # the second and later lines of a parameter's docstring are shown, not only the first
     assert "Dai & Fletcher" in " ".join(out.split())
