@@ -1,4 +1,4 @@
-"""Untrusted stored sets (issue 31, item 6): every hostile file is a StoredSetError, found
+"""Untrusted stored sets: every hostile file is a StoredSetError, found
 before the reader allocates, decompresses or opens anything beyond the file itself."""
 
 from __future__ import annotations
