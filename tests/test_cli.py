@@ -255,3 +255,14 @@ def test_solve_warns_when_emvps_are_priced_by_the_clock():
     res = lcpbench.solve(lambda v: A @ v, b, shape=(2, 2), solver="bi-pqn",
                          low={"c": lambda v: 1.01 * A @ v}, low_cost=0.25)
     assert res.emvps == pytest.approx(res.mvps + 0.25 * res.lofi_mvps["c"])
+
+
+def test_readme_links_every_documentation_page():
+    text = README.read_text()
+    docs = README.parent / "docs"
+    pages = sorted(p.relative_to(README.parent).as_posix()
+                   for p in [*docs.glob("*.md"), *docs.glob("guide/*.md"),
+                             *docs.glob("archive/*.md")] if p.name != "index.md")
+    assert "docs/report.md" in pages and "docs/errors.md" in pages
+    missing = [p for p in pages if f"]({p})" not in text]
+    assert not missing, f"README does not link {missing}"
