@@ -9,7 +9,7 @@ Usage::
 Bi-PQN's defaults (``warm_rtol``, ``inner_rtol``, ``forcing``, ``model_tol``) were chosen on
 the shipped sets, all generated with seed 0 (docs/benchmarks.md, "PQN defaults: the
 measurements behind them"). This script checks them on configurations none of the shipped
-sets holds (issue 28): for each scene and seed the lattice is packed by ``--pack`` cheap RPY
+sets holds: for each scene and seed the lattice is packed by ``--pack`` cheap RPY
 steps, the step's contact LCP is built with the boundary-integral mobility at order ``--p``
 (``eps_gmres`` 1e-8) and formed densely as the stored sets are (``(A + A')/2`` of n
 products), and it gets two synthetic lows ``A + E`` with ``||E||_2 = --error ||A||_2``

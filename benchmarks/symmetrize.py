@@ -5,9 +5,9 @@ Usage::
     python benchmarks/symmetrize.py                       # lattice m = 2 and 3, p = 4, 6, 8
     python benchmarks/symmetrize.py --scene paper-lattice --m 2 --p 4 6
 
-Issue 28 asked whether the boundary-integral contact operator needs two solves per product
-(``v -> D' (M + M') D v / 2``: one forward, one adjoint) or whether the plain ``D' M D``
-(one forward solve) will do.  For each scene size a packed configuration is made cheaply
+Does the boundary-integral contact operator need two solves per product
+(``v -> D' (M + M') D v / 2``: one forward, one adjoint), or will the plain ``D' M D``
+(one forward solve) do?  For each scene size a packed configuration is made cheaply
 with the RPY model (``--steps`` Mono-PQN steps, as in ``benchmarks/symmetry.py``); then, for
 each p, the step's boundary-integral contact problem is built twice,
 ``ContactOptions(symmetrize=True)`` (the default) and ``symmetrize=False``, and each solver

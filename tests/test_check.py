@@ -134,7 +134,7 @@ def test_shipped_sets_are_problem_plugins(tmp_path, set_path, monkeypatch, capsy
     monkeypatch.setattr(stored_mod, "DATA_DIR", data)
     try:
         assert register_shipped_sets() == ["set-lattice-demo"]
-        assert main(["list", "problems", "--brief"]) == 0
+        assert main(["list", "problems"]) == 0
         assert "set-lattice-demo" in capsys.readouterr().out
         lcps = registry.get_problem("set-lattice-demo").func(
             registry.make_params("set-lattice-demo",

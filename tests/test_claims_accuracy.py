@@ -1,4 +1,4 @@
-"""Issue 31, item 2: no ``converged`` that the framework's own product refutes.
+"""No ``converged`` that the framework's own product refutes.
 
 Operators whose products are not float64-exact and that declare nothing (single
 precision, an iterative solve at an undeclared tolerance): the drift bound of the PQN

@@ -1,4 +1,4 @@
-"""Issue 31, item 4: no ``infeasible`` on problems that have a solution.
+"""No ``infeasible`` on problems that have a solution.
 
 The evidence test compared ``||(A d)_+||`` with ``1e-10 ||A||``, so a positive definite
 ``A = s I + M v v'`` (eigenvalues 0.1 ... 3.4e10) was "singular" along its small

@@ -15,6 +15,7 @@ import pytest
 
 import lcpbench
 from lcpbench.cli import main
+from lcpbench.core.specs import describe_params
 
 
 def test_list_json_has_every_solver_and_problem_with_parameters(capsys):
@@ -31,12 +32,27 @@ def test_list_json_has_every_solver_and_problem_with_parameters(capsys):
     assert defaults
 
 
-def test_list_text_and_brief(capsys):
-    assert main(["list", "solvers", "--brief"]) == 0
+def test_list_is_brief_by_default_and_full_on_request(capsys):
+    assert main(["list", "solvers"]) == 0
     out = capsys.readouterr().out
     assert "mono-pqn" in out and "random-spd" not in out
+    assert "memory: int" not in out                     # no parameter lines
     assert main(["list", "problems"]) == 0
     assert "random-spd" in capsys.readouterr().out
+    assert main(["list"]) == 0
+    brief = capsys.readouterr().out.splitlines()
+    assert len(brief) < 80
+    assert "Every parameter: lcpbench list --full [solvers|problems|scenes]" in brief
+    assert main(["list", "--full"]) == 0
+    full = capsys.readouterr().out
+    assert len(full.splitlines()) > 2 * len(brief)
+    # every parameter of every listed solver, with its type and default
+    for name, info in lcpbench.list_solvers().items():
+        if info.listed:
+            for prm, typ, _, _ in describe_params(info.params):
+                assert f"      {prm}: {typ} = " in full, (name, prm)
+    assert main(["list", "--brief"]) == 0              # still accepted: the default
+    assert capsys.readouterr().out.splitlines() == brief
 
 
 def test_solve_json_rows_are_verified(capsys):
@@ -199,7 +215,7 @@ def test_dask_executor_without_dask_is_refused_up_front(tmp_path, monkeypatch, c
 
 
 def test_list_shows_whole_parameter_docs_in_plain_words(capsys):
-    assert main(["list"]) == 0
+    assert main(["list", "--full"]) == 0
     out = capsys.readouterr().out
     # the second and later lines of a parameter's docstring are shown, not only the first
     assert "Dai & Fletcher" in " ".join(out.split())
@@ -249,3 +265,14 @@ def test_solve_warns_when_emvps_are_priced_by_the_clock():
     res = lcpbench.solve(lambda v: A @ v, b, shape=(2, 2), solver="bi-pqn",
                          low={"c": lambda v: 1.01 * A @ v}, low_cost=0.25)
     assert res.emvps == pytest.approx(res.mvps + 0.25 * res.lofi_mvps["c"])
+
+
+def test_readme_links_every_documentation_page():
+    text = README.read_text()
+    docs = README.parent / "docs"
+    pages = sorted(p.relative_to(README.parent).as_posix()
+                   for p in [*docs.glob("*.md"), *docs.glob("guide/*.md"),
+                             *docs.glob("archive/*.md")] if p.name != "index.md")
+    assert "docs/report.md" in pages and "docs/errors.md" in pages
+    missing = [p for p in pages if f"]({p})" not in text]
+    assert not missing, f"README does not link {missing}"

@@ -1,4 +1,4 @@
-"""pgs and lemke run with BLAS on one thread, the toolkit's rule (issue 31.10)."""
+"""pgs and lemke run with BLAS on one thread, the toolkit's rule."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The command line's bad inputs of issue 29: one line, exit 2, nothing written."""
+"""The command line's bad inputs: one line, exit 2, nothing written."""
 
 import os
 import subprocess

@@ -1,4 +1,4 @@
-"""Memory and set-up hygiene of the live boundary-integral backend (brief H items 1, 2, 4, 5, 6).
+"""Memory and set-up hygiene of the live boundary-integral backend.
 
 One Krylov budget per time step, the previous step's operator released before the next is
 built, the non-collisional solve warm-started from the previous step's density, costs
@@ -39,7 +39,7 @@ def _matrix(n: int, seed: int = 0) -> np.ndarray:
     return np.eye(n) + 0.95 * K / np.linalg.norm(K, 2)
 
 
-# ------------------------------------------------------------------ item 2: one budget
+# ------------------------------------------------------------------ one budget
 def test_spaces_sharing_a_budget_stop_growing_together_and_still_solve():
     n = 400
     G = _matrix(n)
@@ -86,7 +86,7 @@ def test_a_bad_krylov_budget_is_refused_with_the_rule():
         KrylovBudget(float("nan"))
 
 
-# ------------------------------------------------------------------ item 1: released
+# ------------------------------------------------------------------ released
 def _track_mobilities(monkeypatch) -> list:
     """Weak references to every BimMobility built, and whether the earlier ones (and their
     set-ups and blocks) were still alive when each new one started building."""
@@ -117,7 +117,7 @@ def test_the_previous_steps_operator_is_released_before_the_next_is_built(monkey
     assert not any(any(alive) for alive in alive_at_build)
 
 
-# ------------------------------------------------------------------ item 4: warm start
+# ------------------------------------------------------------------ warm start
 def test_the_non_collisional_solve_starts_from_a_nearby_density():
     A = BimMobility(CENTERS, 1.0, p=4, eps_gmres=1e-10)
     ft = np.concatenate([LOADS, np.zeros((3, 3))], axis=1).ravel()
@@ -200,7 +200,7 @@ def test_the_non_collisional_guess_extrapolates_the_two_previous_densities():
     np.testing.assert_array_equal(old.nc_guess(), s1)
 
 
-# ------------------------------------------------------------------ item 5: cost ratio
+# ------------------------------------------------------------------ cost ratio
 def test_no_product_is_made_to_time_the_fidelities():
     prob = build_contact_problem(CENTERS, 1.0, LOADS, None, **STEP, model="bim",
                                  p=3, eps_gmres=1e-8, low=["p3e4", "p2e4"])
@@ -234,7 +234,7 @@ def test_undeclared_costs_never_buy_a_high_product_to_set_the_unit():
     assert r_clocked.mvps == r_declared.mvps
 
 
-# ------------------------------------------------------------------ item 6: far = auto
+# ------------------------------------------------------------------ far = auto
 def test_far_auto_takes_the_fmm_from_the_measured_crossover(monkeypatch):
     M = fmm.FAR_CROSSOVER_M
     monkeypatch.setattr(fmm, "fmm_available", lambda: True)

@@ -1,4 +1,4 @@
-"""The measured quadrature-error tables are kept on disk, validated on read (brief H item 3)."""
+"""The measured quadrature-error tables are kept on disk, validated on read."""
 
 from __future__ import annotations
 

@@ -100,7 +100,7 @@ def test_an_unlisted_solver_runs_by_name_but_joins_no_default(capsys):
     assert res.solved                                  # runnable by name
     assert "test-unlisted" not in default_sweep()[0]
     assert not any(s.startswith("test-unlisted") for s in default_specs(["low"]))
-    assert main(["list", "solvers", "--brief"]) == 0
+    assert main(["list", "solvers"]) == 0
     assert "test-unlisted" not in capsys.readouterr().out
 
 

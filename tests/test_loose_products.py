@@ -1,5 +1,5 @@
 """Products to a requested accuracy (``Operator.product_within``) and PQN's loose products of
-points (``products=iterate,relax=``, issue 28 item 2): the hook, the boundary-integral
+points (``products=iterate,relax=``): the hook, the boundary-integral
 operator's looser solves, and that loose products never decide a claim."""
 
 from __future__ import annotations

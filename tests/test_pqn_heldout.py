@@ -1,4 +1,4 @@
-"""Bi-PQN's defaults on a packed configuration none of the shipped sets holds (issue 28).
+"""Bi-PQN's defaults on a packed configuration none of the shipped sets holds.
 
 The shipped sets were all generated with seed 0; ``benchmarks/pqn_heldout.py`` checks the
 defaults on other seeds and both lattice scenes (docs/benchmarks.md, "Bi-PQN's defaults on

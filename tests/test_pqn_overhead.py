@@ -1,4 +1,4 @@
-"""PQN's own work per iteration (issue 28, item 4): the compact BFGS memory and the Gram-form
+"""PQN's own work per iteration: the compact BFGS memory and the Gram-form
 prox give the same model, steps and iterates as the unrolled formulas, without n x r arrays.
 
 The ``_old_*`` functions below are the formulas of the code before the change (unrolled

@@ -1,5 +1,5 @@
-"""PQN's products of the new point (``products=iterate``, issue 28 item 2) and the pair
-storage's sweeps (item 4): what is applied, when the difference is given up, and that the
+"""PQN's products of the new point (``products=iterate``) and the pair
+storage's sweeps: what is applied, when the difference is given up, and that the
 pairs' products with the gradient come from the pair update."""
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ def test_paper_products_are_the_default_and_unchanged():
     assert len(rec.inputs) >= 3 and any(np.min(v) < 0 for v in rec.inputs[1:])
 
 
-# ------------------------------------------------------------------ item 4: pair storage
+# ------------------------------------------------------------------ pair storage
 def _pairs(n, r, seed=0):
     rng = np.random.default_rng(seed)
     A, _ = _lcp_matrix(n, seed)

@@ -1,4 +1,4 @@
-"""Reference QP solvers that cannot hang (issue 31, item 1).
+"""Reference QP solvers that cannot hang.
 
 ProxQP has no time limit of its own and, on some 2 x 2 infeasible problems of the
 ``infeasible`` family, spends minutes on its 10^5 outer iterations (367 s on the third

@@ -1,4 +1,4 @@
-"""Issue 29 / 31 (report): no pooled view, failures counted, references apart, safe text.
+"""The report: no pooled view, failures counted, references apart, safe text.
 
 Built from hand-made run-store rows, so every expected number is known in advance.
 """

@@ -188,7 +188,7 @@ def test_scene_step_uses_eq_defaandb_and_moves_with_u_nc_plus_mdx():
 
 def test_low_fidelity_operators_are_priced_by_their_own_products():
     # no cost is declared and no product is made to time one: the solve's counted
-    # products price every fidelity (brief H item 5)
+    # products price every fidelity
     c, r = random_cluster(8)
     lcp = contact_lcp(c, r, dt=0.1, delta=0.3, model=MODEL, low=["self"])
     assert set(lcp.low) == {"self"}

@@ -1,4 +1,4 @@
-"""Untrusted simulation checkpoints (issue 31, item 6): sizes checked before decompressing,
+"""Untrusted simulation checkpoints: sizes checked before decompressing,
 orphan temporaries of killed writers removed."""
 
 from __future__ import annotations

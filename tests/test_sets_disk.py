@@ -1,4 +1,4 @@
-"""Stored sets on a failing disk (issue 31, item 3): a write that fails leaves the set as it was.
+"""Stored sets on a failing disk: a write that fails leaves the set as it was.
 
 The full disk is real for the process: ``RLIMIT_FSIZE`` caps the size of every file it writes
 (the kernel then fails the write with EFBIG, as a full disk fails it with ENOSPC), so the HDF5

@@ -1,5 +1,5 @@
 """Siconos MLCP files are refused by name; a folder import skips and lists what it cannot
-solve (issue 31.10). Every file here is written by hand, in the layouts of Siconos numerics."""
+solve. Every file here is written by hand, in the layouts of Siconos numerics."""
 
 from __future__ import annotations
 

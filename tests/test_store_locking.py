@@ -1,4 +1,4 @@
-"""The run store under a live writer: readers take no liberties with its files (issue 31.5).
+"""The run store under a live writer: readers take no liberties with its files.
 
 A reader (``lcpbench report``, a second ``run`` that is refused) must leave a runner's
 half-written line alone; repairs happen only under the exclusive lock; a last line without

@@ -1,4 +1,4 @@
-"""Work in inner applications beside E-MVPs (issue 28, item 1): the ``work`` hook of the
+"""Work in inner applications beside E-MVPs: the ``work`` hook of the
 counted operator, the application-weighted cost in results, and the live BIM operator."""
 
 import numpy as np
@@ -140,7 +140,7 @@ def test_bim_operator_reports_its_forward_and_adjoint_krylov_applications():
 def test_bim_declares_the_cold_applications_of_its_non_collisional_solve():
     """The non-collisional solve is the high mobility's first (cold) product: the high
     operator declares its inner applications as its cold_applications, and no cost is
-    declared (the step's own counted products price the fidelities, brief H item 5)."""
+    declared (the step's own counted products price the fidelities)."""
     c = np.array([[0.0, 0.0, 0.0], [2.2, 0.0, 0.0], [1.1, 1.95, 0.0]])
     F = np.tile([[0.0, -1.0, 0.0]], (3, 1))
     prob = build_contact_problem(c, 1.0, F, None, dt=0.1, delta=0.4, model="bim", p=3,

@@ -1,4 +1,5 @@
-"""``lcpbench list``: the registered solvers, problem families and scenes with their parameters."""
+"""``lcpbench list``: the registered solvers, problem families and scenes (``--full``: with
+their parameters)."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ __all__ = ["add_list_parser", "cmd_list"]
 
 
 _LIST_DESCRIPTION = """
-List every registered solver, problem family and scene, with their parameters, types,
-defaults and documentation.
+List every registered solver, problem family and scene, one line each; --full adds every
+parameter with its type, default and documentation.
 """
 
 
@@ -27,7 +28,10 @@ def add_list_parser(sub) -> None:
     p.add_argument("what", nargs="?", choices=("solvers", "problems", "scenes", "all"),
                    default="all")
     p.add_argument("--json", action="store_true", help="machine-readable output")
-    p.add_argument("--brief", action="store_true", help="names and summaries only")
+    p.add_argument("--full", action="store_true",
+                   help="every parameter with its type, default and documentation")
+    # The listing is brief by default; --brief stays accepted for scripts that pass it.
+    p.add_argument("--brief", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_list)
 
 
@@ -85,7 +89,7 @@ def cmd_list(args: argparse.Namespace) -> int:
                      "scene": "Scenes (lcpbench simulate / generate --scene)"}[kind]
             print(f"\n{title}:")
         print(f"  {e['name']:<16} {e['summary']}{_tags(e)}")
-        if args.brief:
+        if not args.full:
             continue
         for prm in e["params"]:
             print(f"      {prm['name']}: {prm['type']} = {prm['default']!r}")
@@ -93,4 +97,6 @@ def cmd_list(args: argparse.Namespace) -> int:
                 print(textwrap.fill(prm["doc"], width=100, initial_indent=" " * 10,
                                     subsequent_indent=" " * 10, break_on_hyphens=False))
     print("\nUse as NAME:key=value,...  e.g.  bi-pqn:low=p4,inner_rtol=0.01")
+    if not args.full:
+        print("Every parameter: lcpbench list --full [solvers|problems|scenes]")
     return 0

@@ -96,7 +96,10 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
         Record the verified residual of every iterate (default: on for explicit
         matrices, off for matrix-free operators where it would cost a PDE solve).
     callback : callable, optional
-        ``callback(row, x)`` after each iterate.
+        ``callback(row, x)`` after each iterate (``row``: the history row, with
+        ``mvps``, ``emvps`` and ``kkt_abs``). Raising ``StopIteration`` in it ends
+        the solve at that iterate, as in ``scipy.optimize``: status ``stopped``,
+        the answer verified like any other.
     params : dict, optional
         Solver parameters (merged with those in the spec string).
     force : bool
@@ -407,7 +410,10 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         ``result.state`` of the previous solve (quasi-Newton memory for time
         stepping; solvers that keep none ignore it).
     callback : callable, optional
-        ``callback(row, x)`` after each iterate.
+        ``callback(row, x)`` after each iterate (``row``: the history row, with
+        ``mvps``, ``emvps`` and ``kkt_abs``). Raising ``StopIteration`` in it ends
+        the solve at that iterate, as in ``scipy.optimize``: status ``stopped``,
+        the answer verified like any other.
     force : bool
         Let a solver that needs the explicit matrix form it past the dense-conversion
         limit (2 GiB, see :mod:`lcpbench.core.guards`); without it such a solve is

@@ -106,7 +106,8 @@ class Monitor:
         Also record the verified residual of every iterate (one uncounted
         product each; on by default for explicit matrices, where it is cheap).
     callback : callable, optional
-        ``callback(row: dict, x: ndarray)`` after each iterate.
+        ``callback(row: dict, x: ndarray)`` after each iterate. Raising
+        ``StopIteration`` in it ends the solve at that iterate (status ``stopped``).
     """
 
     def __init__(self, verify: bool = False, callback: Optional[Callable] = None):
@@ -160,6 +161,7 @@ class SolverContext:
         self.state = state
         self.info: dict = {}
         self.status: Optional[Status] = None
+        self.callback_stopped = False    # the callback raised StopIteration
         self.message = ""
         self._prev_kkt: Optional[float] = None
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
@@ -290,6 +292,8 @@ class SolverContext:
         budget, and flags non-finite iterates as ``diverged``. The time spent
         here is not charged to the solver.
         """
+        if self.callback_stopped:   # a solver that reports on after being told to stop
+            raise StopSolver(self.message)
         t0 = time.perf_counter()
         x = np.asarray(x, dtype=np.float64)
         w = np.asarray(w, dtype=np.float64)
@@ -349,8 +353,27 @@ class SolverContext:
                 stop = True
         self._prev_kkt = e_abs if finite else self._prev_kkt
         if self.monitor.callback is not None:
-            self.monitor.callback(dict(row), x)
+            stop = self._call_back(self.monitor.callback, row, x, stop)
         self.monitor.seconds += time.perf_counter() - t0
+        return stop
+
+    def _call_back(self, callback: Callable, row: dict, x: np.ndarray, stop: bool) -> bool:
+        """The caller's callback on this iterate; its ``StopIteration`` ends the solve here.
+
+        The status is then ``stopped`` (unless this iterate already ended the
+        solve for its own reason); a solver that reports again after being told
+        to stop is ended by :class:`StopSolver` (:meth:`report`) at the iterate
+        the callback saw.
+        """
+        try:
+            callback(dict(row), x)
+        except StopIteration as exc:
+            self.callback_stopped = True
+            if not stop:
+                self.status = Status.stopped
+                self.message = (f"stopped by the callback at iterate {row['iter']}"
+                                + (f": {exc}" if str(exc) else ""))
+            return True
         return stop
 
     def _raise_norm_A(self, ratio: float) -> None:
@@ -452,6 +475,8 @@ class SolverContext:
         The framework then verifies the answer and fills the counts.
         """
         st = status if status is not None else self.status
+        if self.callback_stopped and self.status == Status.stopped:
+            st, message = Status.stopped, ""    # the caller's stop outranks the solver's reason
         if st is None:
             st = Status.max_iter
             message = message or "solver returned without meeting the stop rule"

@@ -14,7 +14,7 @@ solver alike.
 The framework (never a solver) applies an operator without counting through
 :func:`apply_uncounted`, to verify answers independently.
 
-Work in inner applications (issue 28).  An MVP is the paper's unit of cost, but an
+Work in inner applications.  An MVP is the paper's unit of cost, but an
 operator that is itself an iterative solve (the boundary-integral mobility with Krylov
 recycling) does not pay the same for every product.  ``Operator(..., work=callable)``
 lets such an operator report its *inner applications* (e.g. GMRES/GCR products of the

@@ -33,6 +33,8 @@ class Status(str, enum.Enum):
     product; the message gives the bound it proves).
     ``diverged``: the iterate or residual became non-finite or blew up.
     ``failed``: the solver raised, an operator raised, or a backend reported failure.
+    ``stopped``: the caller's callback raised ``StopIteration`` (as in
+    ``scipy.optimize``); the solve ends at the iterate the callback was shown.
     """
 
     converged = "converged"
@@ -43,6 +45,7 @@ class Status(str, enum.Enum):
     infeasible = "infeasible"
     diverged = "diverged"
     failed = "failed"
+    stopped = "stopped"
 
     def __str__(self) -> str:  # pragma: no cover - cosmetic
         return self.value
