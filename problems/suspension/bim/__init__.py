@@ -32,6 +32,8 @@ The near field's pair operators
 * :mod:`.kernels_rotated`: blocks in rotated form (Wigner matrices and coaxial entries),
   the per-pair compiled products (the reference), the block stack assembled on demand.
 * :mod:`.pair_frame`: the table pairs' products in the pair frame, batched over pairs.
+* :mod:`.panel_kernels`, :mod:`.panel_source`: the pair frame's inner loops on panels of 32
+  columns, summed in registers, and the generator that writes them out.
 * :mod:`.rotation`: rotations of the real vector spherical harmonics.
 * :mod:`.coaxial`: the coaxial pair table (blocks of equal spheres on the z axis by distance).
 

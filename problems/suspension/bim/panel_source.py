@@ -40,8 +40,13 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
-from numba import config, njit
+from numba import config as _config
+from numba import njit
+
+config: Any = _config
+"""numba's settings (read when a kernel is compiled; set by :func:`vectorising`)."""
 
 __all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "turns",
            "vectorising"]
