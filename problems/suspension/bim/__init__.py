@@ -48,6 +48,7 @@ The Krylov solvers (no import of the rest)
 
 * :mod:`.gmres`: relaxed restarted GMRES with block orthogonalisation.
 * :mod:`.recycle`: Krylov recycling (:class:`.recycle.RecycledGCR`) and its memory budget.
+* :mod:`.gram_schmidt`: classical Gram-Schmidt against an orthonormal block (both above).
 """
 
 from .operator import BimConvergenceWarning, BimMobility, bim_mobility

@@ -24,6 +24,8 @@ from scipy.linalg import get_lapack_funcs
 
 from lcpbench.toolkit.blas import one_blas_thread
 
+from .gram_schmidt import orthogonalise
+
 __all__ = ["relaxed_gmres", "gmres_cycle"]
 
 
@@ -119,25 +121,6 @@ _LARTG = get_lapack_funcs("lartg", dtype=np.float64)
 _EPS = float(np.finfo(np.float64).eps)
 
 
-def _orthogonalise(V: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """``w`` made orthogonal to the orthonormal rows of ``V`` by classical Gram-Schmidt,
-    repeated once when the first pass removed more than ``1 - 1/sqrt(2)`` of its norm.
-
-    Returns the coefficients ``h`` (``w_in = h V + w_out``), ``||w_in||`` and ``||w_out||``;
-    ``w`` is updated in place.
-    """
-    h0 = float(np.linalg.norm(w))
-    h = V @ w
-    w -= h @ V
-    h1 = float(np.linalg.norm(w))
-    if h1 < h0 / np.sqrt(2.0):
-        g = V @ w
-        w -= g @ V
-        h += g
-        h1 = float(np.linalg.norm(w))
-    return h, h0, h1
-
-
 def gmres_cycle(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, x: np.ndarray,
                 rtol: float, restart: int, callback: Callable[[float], None]) -> np.ndarray:
     """One restart cycle of GMRES for ``A x = b`` from ``x``; returns the new iterate.
@@ -148,7 +131,7 @@ def gmres_cycle(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, x: np
     breakdown (a new direction below machine precision of its image), ``callback`` called
     with the relative residual estimate after every step.  Unlike scipy it makes no product
     of the returned iterate (the caller measures its residual).  The orthogonalisation is
-    :func:`_orthogonalise` over the whole basis at once.
+    :func:`.gram_schmidt.orthogonalise` over the whole basis at once.
 
     Parameters
     ----------
@@ -180,7 +163,7 @@ def gmres_cycle(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, x: np
     col = 0
     for col in range(restart):
         w = np.array(matvec(V[col]), dtype=np.float64).reshape(-1)
-        h, h0, h1 = _orthogonalise(V[:col + 1], w)
+        h, h0, h1 = orthogonalise(V[:col + 1], w)
         breakdown = h1 <= _EPS * h0
         V[col + 1] = w if breakdown else w * (1.0 / h1)
         hc = h.tolist()

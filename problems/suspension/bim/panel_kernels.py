@@ -19,8 +19,7 @@ from numba import njit
 config: Any = _config
 """numba's settings (read when a kernel is compiled; set by :func:`vectorising`)."""
 
-__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "turns",
-           "vectorising"]
+__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "vectorising"]
 
 WIDTH = 32
 LANES = 16
@@ -113,85 +112,10 @@ def rows_lanes(rp, ci, wi, vals, X, Y):
 
 
 @njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
-def turns(zi, zj, zm, C, S, sign, X):
-    """Rows ``zi[k]``, ``zj[k]`` of ``X`` (cosine and sine of order ``zm[k]``) turned by
-    ``sign`` times the angle whose cosines and sines of that order are ``C[zm[k]]``,
-    ``S[zm[k]]`` (one per column)."""
-    for k in range(zi.size):
-        xi = X[zi[k]]
-        xj = X[zj[k]]
-        c = C[zm[k]]
-        s = S[zm[k]]
-        a0 = xi[0]; a1 = xi[1]; a2 = xi[2]; a3 = xi[3]
-        a4 = xi[4]; a5 = xi[5]; a6 = xi[6]; a7 = xi[7]
-        a8 = xi[8]; a9 = xi[9]; a10 = xi[10]; a11 = xi[11]
-        a12 = xi[12]; a13 = xi[13]; a14 = xi[14]; a15 = xi[15]
-        a16 = xi[16]; a17 = xi[17]; a18 = xi[18]; a19 = xi[19]
-        a20 = xi[20]; a21 = xi[21]; a22 = xi[22]; a23 = xi[23]
-        a24 = xi[24]; a25 = xi[25]; a26 = xi[26]; a27 = xi[27]
-        a28 = xi[28]; a29 = xi[29]; a30 = xi[30]; a31 = xi[31]
-        b0 = xj[0]; b1 = xj[1]; b2 = xj[2]; b3 = xj[3]
-        b4 = xj[4]; b5 = xj[5]; b6 = xj[6]; b7 = xj[7]
-        b8 = xj[8]; b9 = xj[9]; b10 = xj[10]; b11 = xj[11]
-        b12 = xj[12]; b13 = xj[13]; b14 = xj[14]; b15 = xj[15]
-        b16 = xj[16]; b17 = xj[17]; b18 = xj[18]; b19 = xj[19]
-        b20 = xj[20]; b21 = xj[21]; b22 = xj[22]; b23 = xj[23]
-        b24 = xj[24]; b25 = xj[25]; b26 = xj[26]; b27 = xj[27]
-        b28 = xj[28]; b29 = xj[29]; b30 = xj[30]; b31 = xj[31]
-        c0 = c[0]; c1 = c[1]; c2 = c[2]; c3 = c[3]
-        c4 = c[4]; c5 = c[5]; c6 = c[6]; c7 = c[7]
-        c8 = c[8]; c9 = c[9]; c10 = c[10]; c11 = c[11]
-        c12 = c[12]; c13 = c[13]; c14 = c[14]; c15 = c[15]
-        c16 = c[16]; c17 = c[17]; c18 = c[18]; c19 = c[19]
-        c20 = c[20]; c21 = c[21]; c22 = c[22]; c23 = c[23]
-        c24 = c[24]; c25 = c[25]; c26 = c[26]; c27 = c[27]
-        c28 = c[28]; c29 = c[29]; c30 = c[30]; c31 = c[31]
-        t0 = sign * s[0]; t1 = sign * s[1]; t2 = sign * s[2]; t3 = sign * s[3]
-        t4 = sign * s[4]; t5 = sign * s[5]; t6 = sign * s[6]; t7 = sign * s[7]
-        t8 = sign * s[8]; t9 = sign * s[9]; t10 = sign * s[10]; t11 = sign * s[11]
-        t12 = sign * s[12]; t13 = sign * s[13]; t14 = sign * s[14]; t15 = sign * s[15]
-        t16 = sign * s[16]; t17 = sign * s[17]; t18 = sign * s[18]; t19 = sign * s[19]
-        t20 = sign * s[20]; t21 = sign * s[21]; t22 = sign * s[22]; t23 = sign * s[23]
-        t24 = sign * s[24]; t25 = sign * s[25]; t26 = sign * s[26]; t27 = sign * s[27]
-        t28 = sign * s[28]; t29 = sign * s[29]; t30 = sign * s[30]; t31 = sign * s[31]
-        xi[0] = c0 * a0 - t0 * b0; xi[1] = c1 * a1 - t1 * b1
-        xi[2] = c2 * a2 - t2 * b2; xi[3] = c3 * a3 - t3 * b3
-        xi[4] = c4 * a4 - t4 * b4; xi[5] = c5 * a5 - t5 * b5
-        xi[6] = c6 * a6 - t6 * b6; xi[7] = c7 * a7 - t7 * b7
-        xi[8] = c8 * a8 - t8 * b8; xi[9] = c9 * a9 - t9 * b9
-        xi[10] = c10 * a10 - t10 * b10; xi[11] = c11 * a11 - t11 * b11
-        xi[12] = c12 * a12 - t12 * b12; xi[13] = c13 * a13 - t13 * b13
-        xi[14] = c14 * a14 - t14 * b14; xi[15] = c15 * a15 - t15 * b15
-        xi[16] = c16 * a16 - t16 * b16; xi[17] = c17 * a17 - t17 * b17
-        xi[18] = c18 * a18 - t18 * b18; xi[19] = c19 * a19 - t19 * b19
-        xi[20] = c20 * a20 - t20 * b20; xi[21] = c21 * a21 - t21 * b21
-        xi[22] = c22 * a22 - t22 * b22; xi[23] = c23 * a23 - t23 * b23
-        xi[24] = c24 * a24 - t24 * b24; xi[25] = c25 * a25 - t25 * b25
-        xi[26] = c26 * a26 - t26 * b26; xi[27] = c27 * a27 - t27 * b27
-        xi[28] = c28 * a28 - t28 * b28; xi[29] = c29 * a29 - t29 * b29
-        xi[30] = c30 * a30 - t30 * b30; xi[31] = c31 * a31 - t31 * b31
-        xj[0] = t0 * a0 + c0 * b0; xj[1] = t1 * a1 + c1 * b1
-        xj[2] = t2 * a2 + c2 * b2; xj[3] = t3 * a3 + c3 * b3
-        xj[4] = t4 * a4 + c4 * b4; xj[5] = t5 * a5 + c5 * b5
-        xj[6] = t6 * a6 + c6 * b6; xj[7] = t7 * a7 + c7 * b7
-        xj[8] = t8 * a8 + c8 * b8; xj[9] = t9 * a9 + c9 * b9
-        xj[10] = t10 * a10 + c10 * b10; xj[11] = t11 * a11 + c11 * b11
-        xj[12] = t12 * a12 + c12 * b12; xj[13] = t13 * a13 + c13 * b13
-        xj[14] = t14 * a14 + c14 * b14; xj[15] = t15 * a15 + c15 * b15
-        xj[16] = t16 * a16 + c16 * b16; xj[17] = t17 * a17 + c17 * b17
-        xj[18] = t18 * a18 + c18 * b18; xj[19] = t19 * a19 + c19 * b19
-        xj[20] = t20 * a20 + c20 * b20; xj[21] = t21 * a21 + c21 * b21
-        xj[22] = t22 * a22 + c22 * b22; xj[23] = t23 * a23 + c23 * b23
-        xj[24] = t24 * a24 + c24 * b24; xj[25] = t25 * a25 + c25 * b25
-        xj[26] = t26 * a26 + c26 * b26; xj[27] = t27 * a27 + c27 * b27
-        xj[28] = t28 * a28 + c28 * b28; xj[29] = t29 * a29 + c29 * b29
-        xj[30] = t30 * a30 + c30 * b30; xj[31] = t31 * a31 + c31 * b31
-
-
-@njit(cache=True, fastmath=True, boundscheck=False, error_model="numpy")
 def rows_turned(rp, ci, cv, zi, zj, zm, ones, C, S, sign, X, Y):
     """``Y = Rz Q X``: the rows of ``Q X`` (``Q`` given as for :func:`rows_scalar`)
-    turned about z as :func:`turns` does, pair ``(zi[k], zj[k])`` by order ``zm[k]``;
+    turned about z: rows ``(zi[k], zj[k])`` (cosine, sine of order ``zm[k]``) by ``sign``
+    times the angle of cosines and sines ``C[zm[k]]``, ``S[zm[k]]`` per column;
     the rows ``ones`` (order 0) as they are.  Each half of the columns in turn, so
     that both rows of a pair are summed in registers."""
     for k in range(zi.size):

@@ -48,8 +48,7 @@ from numba import njit
 config: Any = _config
 """numba's settings (read when a kernel is compiled; set by :func:`vectorising`)."""
 
-__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "turns",
-           "vectorising"]
+__all__ = ["WIDTH", "gather_turned", "rows_lanes", "rows_scalar", "rows_turned", "vectorising"]
 
 WIDTH = {width}
 LANES = {lanes}
@@ -82,9 +81,13 @@ def _rows(name: str, lanes: bool) -> list[str]:
            + ("per item: column j of term e weighted by ``vals[wi[e], j % LANES]``"
               if lanes else "scalars ``cv[e]``") + ".")
     args = "rp, ci, wi, vals, X, Y" if lanes else "rp, ci, cv, X, Y"
-    out = ["", "", _JIT, f"def {name}({args}):", f'    """{doc}"""',
-           "    for a in range(rp.size - 1):",
-           *_cols("s{j} = 0.0"),
+    return (["", "", _JIT, f"def {name}({args}):", f'    """{doc}"""',
+             "    for a in range(rp.size - 1):"] + _row_sum(lanes))
+
+
+def _row_sum(lanes: bool) -> list[str]:
+    """The body that sums row ``a`` of ``Y`` in registers (inside a loop, indent 8)."""
+    out = [*_cols("s{j} = 0.0"),
            "        for e in range(rp[a], rp[a + 1]):",
            "            x = X[ci[e]]"]
     if lanes:
@@ -99,25 +102,6 @@ def _rows(name: str, lanes: bool) -> list[str]:
     return out
 
 
-def _turns() -> list[str]:
-    out = ["", "", _JIT, "def turns(zi, zj, zm, C, S, sign, X):",
-           '    """Rows ``zi[k]``, ``zj[k]`` of ``X`` (cosine and sine of order ``zm[k]``) turned by\n'
-           '    ``sign`` times the angle whose cosines and sines of that order are ``C[zm[k]]``,\n'
-           '    ``S[zm[k]]`` (one per column)."""',
-           "    for k in range(zi.size):",
-           "        xi = X[zi[k]]",
-           "        xj = X[zj[k]]",
-           "        c = C[zm[k]]",
-           "        s = S[zm[k]]"]
-    out += _cols("a{j} = xi[{j}]")
-    out += _cols("b{j} = xj[{j}]")
-    out += _cols("c{j} = c[{j}]")
-    out += _cols("t{j} = sign * s[{j}]")
-    out += _cols("xi[{j}] = c{j} * a{j} - t{j} * b{j}", per_line=2)
-    out += _cols("xj[{j}] = t{j} * a{j} + c{j} * b{j}", per_line=2)
-    return out
-
-
 def _half(fmt: str, h: int, indent: int) -> list[str]:
     """``fmt.format(j=j, c=h * LANES + j)`` for the LANES columns of half ``h``."""
     items = [fmt.format(j=j, c=h * LANES + j) for j in range(LANES)]
@@ -128,7 +112,8 @@ def _half(fmt: str, h: int, indent: int) -> list[str]:
 def _rows_turned() -> list[str]:
     out = ["", "", _JIT, "def rows_turned(rp, ci, cv, zi, zj, zm, ones, C, S, sign, X, Y):",
            '    """``Y = Rz Q X``: the rows of ``Q X`` (``Q`` given as for :func:`rows_scalar`)',
-           '    turned about z as :func:`turns` does, pair ``(zi[k], zj[k])`` by order ``zm[k]``;',
+           '    turned about z: rows ``(zi[k], zj[k])`` (cosine, sine of order ``zm[k]``) by ``sign``',
+           '    times the angle of cosines and sines ``C[zm[k]]``, ``S[zm[k]]`` per column;',
            '    the rows ``ones`` (order 0) as they are.  Each half of the columns in turn, so',
            '    that both rows of a pair are summed in registers."""',
            "    for k in range(zi.size):",
@@ -153,14 +138,7 @@ def _rows_turned() -> list[str]:
         out += _half("yb[{c}] = t{j} * p{j} + c{j} * q{j}", h, 8)
     out += ["    for k in range(ones.size):",
             "        a = ones[k]"]
-    out += _cols("s{j} = 0.0")
-    out += ["        for e in range(rp[a], rp[a + 1]):",
-            "            x = X[ci[e]]",
-            "            w = cv[e]"]
-    out += _cols("s{j} += w * x[{j}]", indent=12)
-    out.append("        y = Y[a]")
-    out += _cols("y[{j}] = s{j}")
-    return out
+    return out + _row_sum(lanes=False)
 
 
 def _gather_turned() -> list[str]:
@@ -192,7 +170,6 @@ def render() -> str:
     lines = [_HEAD.format(width=WIDTH, lanes=LANES).rstrip("\n")]
     lines += _rows("rows_scalar", lanes=False)
     lines += _rows("rows_lanes", lanes=True)
-    lines += _turns()
     lines += _rows_turned()
     lines += _gather_turned()
     return "\n".join(lines) + "\n"

@@ -36,6 +36,8 @@ import numpy as np
 
 from lcpbench.toolkit.blas import one_blas_thread
 
+from .gram_schmidt import orthogonalise
+
 __all__ = ["RecycledGCR", "KrylovBudget", "DEFAULT_KRYLOV_MB", "BUDGET_FLOOR",
            "default_capacity", "solve_together"]
 
@@ -226,19 +228,11 @@ class RecycledGCR:
         images, repeated once when the first pass removed more than ``1 - 1/sqrt(2)`` of the
         norm (twice is enough, Kahan), the directions updated once with the summed
         coefficients.  Returns the norms of ``c`` before and after."""
-        nc0 = float(np.linalg.norm(c))
         k = self._filled
         if k == 0:
+            nc0 = float(np.linalg.norm(c))
             return nc0, nc0
-        C = self._C[:k]
-        h = C @ c
-        c -= h @ C
-        nc = float(np.linalg.norm(c))
-        if nc < nc0 / np.sqrt(2.0):
-            g = C @ c
-            c -= g @ C
-            h += g
-            nc = float(np.linalg.norm(c))
+        h, nc0, nc = orthogonalise(self._C[:k], c)
         u -= h @ self._U[:k]
         return nc0, nc
 
