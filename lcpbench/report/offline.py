@@ -23,7 +23,7 @@ from lcpbench.core.defaults import BASELINE_SOLVER
 from lcpbench.report import panels, plots, ranking, ratios, tables
 from lcpbench.report.markup import html_table
 
-__all__ = ["SetView", "set_views", "summary_table", "ratio_tables", "set_section", "references_section",
+__all__ = ["SetView", "set_views", "summary_table", "ratio_stats", "ratio_tables", "set_section", "references_section",
            "CONVENTIONS"]
 
 #: How each view counts failures, stated once at the top of the offline part.
@@ -102,7 +102,8 @@ def _best_at(view: SetView, level: str) -> str:
     return f"{solver}{tied}: {top:.3g} E-MVPs ({hit}/{total})"
 
 
-def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER) -> pd.DataFrame:
+def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER,
+                  stats: dict[str, list[ratios.RatioStats]] | None = None) -> pd.DataFrame:
     """Per problem set: n, instances compared, the best solver by its median ratio to the
     baseline, and the best solver at each residual level.
 
@@ -111,14 +112,16 @@ def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER) -> pd.D
     infinite ratio), shown with the quartiles and its solved count. The best solver at a
     level has the lowest median E-MVPs to first reach it, a run that never reached it
     counting as infinitely many; its cell gives that median and how many runs reached the
-    level. Each cell shows the statistic its solver was chosen by.
+    level. Each cell shows the statistic its solver was chosen by. ``stats`` are the
+    sets' :func:`ratio_stats` when already computed.
     """
+    stats = stats if stats is not None else ratio_stats(views, baseline)
     rows = []
     for v in views:
         row = {"problem set": v.problem, "n": v.n_range,
                "instances": f"{v.info['instances']} of {v.info['total']}",
                "solvers": len(v.info["solvers"])}
-        best = ratios.best_by_ratio(ratios.ratio_stats(v.cut, baseline))
+        best = ratios.best_by_ratio(stats.get(v.problem, []))
         row[f"best median ratio to {baseline}"] = (
             f"{best.solver}: {ratios.format_ratio(best)}" if best is not None else "-")
         for lv in tables.LEVELS:
@@ -127,11 +130,17 @@ def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER) -> pd.D
     return pd.DataFrame(rows)
 
 
-def ratio_tables(views: list[SetView], baseline: str) -> list[pd.DataFrame]:
+def ratio_stats(views: list[SetView], baseline: str) -> dict[str, list[ratios.RatioStats]]:
+    """Per set, every solver's :class:`~lcpbench.report.ratios.RatioStats` to ``baseline``."""
+    return {v.problem: ratios.ratio_stats(v.cut, baseline) for v in views}
+
+
+def ratio_tables(views: list[SetView], baseline: str,
+                 stats: dict[str, list[ratios.RatioStats]] | None = None) -> list[pd.DataFrame]:
     """Each solver's median ratio to ``baseline`` [quartiles] and solved count, per set
     (:func:`lcpbench.report.ratios.ratio_matrix`: solvers down, at most three sets
-    across per table)."""
-    per_set = {v.problem: ratios.ratio_stats(v.cut, baseline) for v in views}
+    across per table); ``stats`` as :func:`summary_table`'s."""
+    per_set = stats if stats is not None else ratio_stats(views, baseline)
     return ratios.ratio_matrix({k: s for k, s in per_set.items() if s})
 
 

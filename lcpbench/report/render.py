@@ -176,10 +176,11 @@ def _summary_sections(page: _Page) -> list[Section]:
     views = page.views
     out = []
     if views:
-        summary = offline.summary_table(views, page.baseline)
+        stats = offline.ratio_stats(views, page.baseline)
+        summary = offline.summary_table(views, page.baseline, stats)
         page.write("summary", summary)
         b = html.escape(page.baseline)
-        grids = offline.ratio_tables(views, page.baseline)
+        grids = offline.ratio_tables(views, page.baseline, stats)
         page.write("ratios", pd.concat(grids, ignore_index=True) if grids else pd.DataFrame())
         out.append(Section("summary", "Summary", (
             "<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
