@@ -142,3 +142,15 @@ def test_the_report_opens_with_the_paper_after_the_summary(paper_store, tmp_path
     assert str(row["paper ratio"]) == "0.42"
     summary = text[text.index("<h2 id='summary'>"):text.index("<h2 id='paper'>")]
     assert "[25 %-75 %]" in summary and "solved" in summary
+
+
+def test_a_set_the_baseline_never_solved_says_so():
+    rows = [_row(f"i{k}", "bb-pgd", 5.0, solved=False) for k in range(2)]
+    rows += [_row(f"i{k}", "mono-pqn", 3.0) for k in range(2)]
+    res = _cut(rows)
+    hist = pd.DataFrame({"run_id": res["run_id"], "k": 0, "emvps": res["emvps"],
+                         "time_s": res["time_s"], "kkt_abs_verified": np.nan,
+                         "kkt_abs": np.where(res["solved"], 1e-9, 1.0)})
+    summary = offline.summary_table(offline.set_views(res, hist), "bb-pgd")
+    assert summary["best median ratio to bb-pgd"].iloc[0] == \
+        "- (bb-pgd solved no instance at a positive cost)"

@@ -123,7 +123,8 @@ def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER,
                "solvers": len(v.info["solvers"])}
         best = ratios.best_by_ratio(stats.get(v.problem, []))
         row[f"best median ratio to {baseline}"] = (
-            f"{best.solver}: {ratios.format_ratio(best)}" if best is not None else "-")
+            f"{best.solver}: {ratios.format_ratio(best)}" if best is not None
+            else f"- ({baseline} solved no instance at a positive cost)")
         for lv in tables.LEVELS:
             row[f"best to {lv:.0e}"] = _best_at(v, f"{lv:.0e}")
         rows.append(row)
