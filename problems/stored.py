@@ -83,8 +83,10 @@ class ShippedSetParams:
     instances: str = ""
 
 
-#: Shipped sets in the default sweep of ``lcpbench run`` (with the hard-case families).
-DEFAULT_SETS = ("lattice-bim-m3",)
+#: Shipped sets in the default sweep of ``lcpbench run`` (with the hard-case families): the
+#: 0.1a lattice (the hard case) and the authors' 0.3a lattice, where the method paper's
+#: offline result can be checked (its lows p = 3, 4, 6 and the distance-split lows).
+DEFAULT_SETS = ("lattice-bim-m3", "paper-lattice-m3")
 
 
 def register_shipped_sets() -> list[str]:

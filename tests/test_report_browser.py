@@ -5,6 +5,7 @@ chromium-driver``), so it carries the ``browser`` marker: the README's test comm
 deselects it and ``.ci/run`` runs it after installing them.
 """
 
+import re
 import shutil
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from lcpbench.report.render import render_report
 from lcpbench.run.runner import execute, plan
 from lcpbench.run.store import RunStore
 from lcpbench.run.sweep import Sweep
+from lcpbench.workflows.simulate import simulate
 
 pytestmark = pytest.mark.browser
 
@@ -49,6 +51,67 @@ def report(tmp_path_factory):
     return render_report(store)
 
 
+#: The most curves one panel may draw (lcpbench.report.panels.MAX_CURVES).
+MAX_CURVES = 7
+
+#: JavaScript: per figure, its legend entries and the CSS pixel size of each number drawn
+#: in it (heatmap cells, ticks), and whether it is a heatmap of the fidelity study.
+_FIGURE_TEXT = """
+return Array.from(document.querySelectorAll('.fig svg')).map(svg => {
+  const scale = svg.getBoundingClientRect().width / svg.viewBox.baseVal.width;
+  const entries = [];
+  svg.querySelectorAll('g[id*=legend]').forEach(leg => leg.querySelectorAll('text').forEach(
+      t => { if (t.textContent.trim() && t.textContent !== 'solver (runs)')
+               entries.push(t.textContent); }));
+  const numbers = Array.from(svg.querySelectorAll('text'))
+      .filter(t => /^-?[0-9.]+$/.test(t.textContent.trim()))
+      .map(t => [t.textContent, parseFloat(getComputedStyle(t).fontSize) * scale]);
+  return [Array.from(new Set(entries)), numbers,
+          svg.textContent.includes('||A_low - A||_inf')];
+});
+"""
+
+
+def _check_curves_and_heatmap_numbers(driver):
+    """No panel draws more than seven curves; heatmap numbers are at least 11 px."""
+    heatmaps = 0
+    for entries, numbers, heat in driver.execute_script(_FIGURE_TEXT):
+        assert len(entries) <= MAX_CURVES, entries
+        if heat:
+            heatmaps += 1
+            small = [(t, round(px, 1)) for t, px in numbers if px < 11]
+            assert small == [], f"heatmap numbers under 11 px at 1400 px: {small}"
+    assert heatmaps >= 1
+
+
+@pytest.fixture(scope="module")
+def online_report(tmp_path_factory):
+    store = tmp_path_factory.mktemp("browser-online") / "store"
+    simulate("lattice:m=2,model=rpy,low=[self]", ["bb-pgd", "mono-pqn", "bi-pqn:low=self"],
+             8, store, progress=False)
+    return render_report(store)
+
+
+def test_online_tables_fit_in_1400_px(online_report):
+    driver = _driver()
+    try:
+        driver.get(online_report.as_uri())
+        widths = driver.execute_script(
+            "return Array.from(document.querySelectorAll('table')).map(t => "
+            "[t.getBoundingClientRect().right, t.scrollWidth, t.clientWidth, "
+            "t.innerText.slice(0, 40)]);")
+        assert widths, "no table on the page"
+        body = driver.execute_script("return document.body.getBoundingClientRect().right")
+        wide = [w for w in widths if w[0] > body + 1 or w[1] > w[2] + 1]
+        assert wide == [], wide
+        assert max(w[0] for w in widths) <= 1400
+        assert driver.execute_script("return document.documentElement.scrollWidth") <= 1400
+        text = driver.execute_script("return document.body.innerText")
+        assert re.search(r"Online, beside the method paper's online table", text)
+    finally:
+        driver.quit()
+
+
 def test_report_is_readable_at_1400_px(report, tmp_path):
     driver = _driver()
     try:
@@ -75,6 +138,10 @@ def test_report_is_readable_at_1400_px(report, tmp_path):
         for latex in ("cottleLemma", "pqnSubproblem", "stepSize", "eq. "):
             assert latex not in labels, latex
         _check_views_colours_and_legends(driver)
+        _check_curves_and_heatmap_numbers(driver)
+        h2 = driver.execute_script(
+            "return Array.from(document.querySelectorAll('h2')).map(h => h.id);")
+        assert h2[1:4] == ["summary", "paper", "run"], h2     # the paper after the summary
         shot = tmp_path / "report.png"
         driver.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000

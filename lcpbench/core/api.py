@@ -353,7 +353,10 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> S
         app_cost = float(run.app_cost())
     except Exception:  # high_cost() already failed above: emvps is nan and the status says why
         app_cost = float("nan")
-    work = {"applications": run.work_counts()}
+    used = {k: op for k, op in run.operators().items() if op.count}
+    work = {"applications": run.work_counts(),       # and what the products cost, per operator
+            "operator_seconds": {k: float(op.seconds) for k, op in used.items()},
+            "operator_cost": {k: op.cost for k, op in used.items()}}
     claimed = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
     verified, status, message = _verified(ctx, run, x, status, message)
     return SolveResult(

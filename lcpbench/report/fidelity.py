@@ -25,6 +25,10 @@ from lcpbench.workflows.fidelity import cache_entry, cached_fidelity_table
 
 __all__ = ["cottle_heatmap_svg", "fidelity_section", "heatmap_svg", "heatmaps"]
 
+#: Font size of the numbers in heatmap cells, in points (12 CSS pixels at the figures'
+#: natural size; the report's browser test holds them to at least 11 px at 1400 px).
+CELL_PT = 9.0
+
 def _axes(table: Optional[pd.DataFrame]) -> Optional[FidelityAxes]:
     """The knobs the table's scene declared (``table.attrs["axes"]``), or None."""
     return None if table is None else table.attrs.get("axes")
@@ -88,7 +92,7 @@ def _heat(ax, grid: pd.DataFrame, column: str, title: str, cbar: str, fmt: str,
     for a in range(len(ps)):
         for b in range(len(eps)):
             if np.isfinite(M[a, b]):
-                ax.text(b, a, format(M[a, b], fmt), ha="center", va="center", fontsize=7,
+                ax.text(b, a, format(M[a, b], fmt), ha="center", va="center", fontsize=CELL_PT,
                         color="white" if M[a, b] < mid else "black")
 
 

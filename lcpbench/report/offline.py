@@ -12,15 +12,18 @@ unlike sets.
 from __future__ import annotations
 
 import html
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
-from lcpbench.report import plots, ranking, tables
+from lcpbench.core.defaults import BASELINE_SOLVER
+from lcpbench.report import panels, plots, ranking, ratios, tables
 from lcpbench.report.markup import html_table
 
-__all__ = ["SetView", "set_views", "summary_table", "set_section", "references_section",
+__all__ = ["SetView", "set_views", "summary_table", "ratio_stats", "ratio_tables", "set_section", "references_section",
            "CONVENTIONS"]
 
 #: How each view counts failures, stated once at the top of the offline part.
@@ -78,42 +81,68 @@ def set_views(results: pd.DataFrame, history: pd.DataFrame) -> list[SetView]:
     return out
 
 
-def _best_at(view: SetView, level: str, pen: float) -> str:
-    """``solver: cost (k/m)`` of the solver with the lowest shifted GM to reach ``level``."""
+def _best_at(view: SetView, level: str) -> str:
+    """``solver: cost (k/m)`` of the solver with the lowest median E-MVPs to reach ``level``,
+    a run that never reached it counting as infinitely many: the statistic the cell shows."""
     r = view.reach
     if r.empty:
         return "-"
     scored = []
     for solver, g in r.groupby("solver", sort=True):
         v = g[f"emvps@{level}"]
-        sgm = ranking.shifted_geomean(v.fillna(pen), v.notna(), pen, ranking.SHIFT["emvps"])
-        scored.append((round(sgm, 9), str(solver), v.dropna(), len(g)))
+        med = float(np.median(v.astype(float).fillna(np.inf)))
+        scored.append((round(med, 9) if np.isfinite(med) else np.inf, str(solver),
+                       int(v.notna().sum()), len(g)))
     scored.sort(key=lambda t: (t[0], t[1]))
     top, solver, hit, total = scored[0]
-    if hit.empty:
-        return f"none reached it (0/{total})"
+    if not np.isfinite(top):
+        return f"none reached it in half its runs ({max(t[2] for t in scored)}/{total} at most)"
     ties = sum(1 for t in scored[1:] if t[0] <= top * (1 + 1e-9))
     tied = f" (tied with {ties} more)" if ties else ""
-    return f"{solver}{tied}: {hit.median():.3g} E-MVPs ({len(hit)}/{total})"
+    return f"{solver}{tied}: {top:.3g} E-MVPs ({hit}/{total})"
 
 
-def summary_table(views: list[SetView], meta: dict | None = None) -> pd.DataFrame:
-    """Per problem set: n, instances compared, and the best solver at each residual level.
+def summary_table(views: list[SetView], baseline: str = BASELINE_SOLVER,
+                  stats: dict[str, list[ratios.RatioStats]] | None = None) -> pd.DataFrame:
+    """Per problem set: n, instances compared, the best solver by its median ratio to the
+    baseline, and the best solver at each residual level.
 
-    The best solver at a level is the one with the lowest shifted geometric mean of the
-    E-MVPs to first reach it (a run that never reached it at the penalty); its cell
-    gives the median E-MVPs of its runs that reached the level and how many did.
+    The best solver by ratio has the lowest median per-instance E-MVP ratio to
+    ``baseline`` (:mod:`lcpbench.report.ratios`; an unsolved instance counts as an
+    infinite ratio), shown with the quartiles and its solved count. The best solver at a
+    level has the lowest median E-MVPs to first reach it, a run that never reached it
+    counting as infinitely many; its cell gives that median and how many runs reached the
+    level. Each cell shows the statistic its solver was chosen by. ``stats`` are the
+    sets' :func:`ratio_stats` when already computed.
     """
+    stats = stats if stats is not None else ratio_stats(views, baseline)
     rows = []
     for v in views:
         row = {"problem set": v.problem, "n": v.n_range,
                "instances": f"{v.info['instances']} of {v.info['total']}",
                "solvers": len(v.info["solvers"])}
-        pen = ranking.penalty(v.cut, "emvps", meta) if not v.cut.empty else 1.0
+        best = ratios.best_by_ratio(stats.get(v.problem, []))
+        row[f"best median ratio to {baseline}"] = (
+            f"{best.solver}: {ratios.format_ratio(best)}" if best is not None
+            else f"- ({baseline} solved no instance at a positive cost)")
         for lv in tables.LEVELS:
-            row[f"best to {lv:.0e}"] = _best_at(v, f"{lv:.0e}", pen)
+            row[f"best to {lv:.0e}"] = _best_at(v, f"{lv:.0e}")
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def ratio_stats(views: list[SetView], baseline: str) -> dict[str, list[ratios.RatioStats]]:
+    """Per set, every solver's :class:`~lcpbench.report.ratios.RatioStats` to ``baseline``."""
+    return {v.problem: ratios.ratio_stats(v.cut, baseline) for v in views}
+
+
+def ratio_tables(views: list[SetView], baseline: str,
+                 stats: dict[str, list[ratios.RatioStats]] | None = None) -> list[pd.DataFrame]:
+    """Each solver's median ratio to ``baseline`` [quartiles] and solved count, per set
+    (:func:`lcpbench.report.ratios.ratio_matrix`: solvers down, at most three sets
+    across per table); ``stats`` as :func:`summary_table`'s."""
+    per_set = stats if stats is not None else ratio_stats(views, baseline)
+    return ratios.ratio_matrix({k: s for k, s in per_set.items() if s})
 
 
 def _caption(view: SetView, what: str) -> str:
@@ -155,12 +184,17 @@ def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, ancho
                 solved, "solver", "emvps", f"E-MVPs of the solved runs: {view.problem} "
                 f"({n_inst} instances)", "E-MVPs (log scale)", order=list(table["solver"]),
                 colors=colors, counts=counts)), _caption(view, "Box plot of solved runs")))
+        setup = _setup_note(view.cut)
+        if setup:
+            parts.append(setup)
         curves = tables.convergence_curves(view.cut, view.history, "emvps")
-        if curves:
+        for title, group in panels.panel_groups(curves, baseline):
             parts.append(_view(view, fig(plots.curves_svg(
-                curves, "E-MVPs (log scale)", f"Residual against E-MVPs: {view.problem} "
-                f"({n_inst} instances)", colors=colors)), _caption(
-                view, "Convergence (exact zeros drawn a decade below the smallest residual)")))
+                {s: curves[s] for s in group}, "E-MVPs (log scale)",
+                f"Residual against E-MVPs: {view.problem} ({n_inst} instances)"
+                + (f", {title}" if title else ""), colors=colors)), _caption(
+                view, "Convergence (exact zeros drawn a decade below the smallest residual)"
+                + (f", {title}" if title else ""))))
     wp = tables.work_precision(view.cut_time, view.history)
     write(f"work_precision_{anchor}", wp)
     if not wp.empty:
@@ -175,10 +209,39 @@ def set_section(view: SetView, *, baseline: str, meta: dict, colors: dict, ancho
         for c in wp.columns:
             if c.startswith("emvps@"):
                 wp_e[c] = wp[c].where(mvp_only, None)
-        parts.append(_view(view, fig(plots.set_overview_svg(
-            wp_e, profiles, f"Speed views: {view.problem} ({n_inst} instances)",
-            colors=colors)), _caption(view, "Work-precision and performance profiles")))
+        for title, group in panels.panel_groups(wp["solver"].astype(str), baseline):
+            keep = {m: p[["tau"] + [c for c in p.columns if c in group]] if not p.empty else p
+                    for m, p in profiles.items()}
+            parts.append(_view(view, fig(plots.set_overview_svg(
+                wp_e[wp_e["solver"].isin(group)], keep,
+                f"Speed views: {view.problem} ({n_inst} instances)"
+                + (f", {title}" if title else ""), colors=colors)),
+                _caption(view, "Work-precision and performance profiles"
+                         + (f", {title}" if title else ""))))
     return "\n".join(parts)
+
+
+def _setup_note(cut: pd.DataFrame) -> str:
+    """A note naming the counted set-up products inside some solvers' E-MVPs (A-PGD's
+    power iterations that estimate L), or ""."""
+    notes = []
+    for solver, g in cut.groupby("solver", sort=True):
+        power = []
+        for text in g["info"].dropna() if "info" in g else []:
+            try:
+                v = json.loads(text).get("power_mvps")
+            except (ValueError, AttributeError):
+                continue
+            if isinstance(v, (int, float)) and v > 0:
+                power.append(float(v))
+        if power:
+            notes.append(f"{html.escape(str(solver))}: its E-MVPs include a median of "
+                         f"{np.median(power):g} counted power-iteration products (set-up "
+                         "products that estimate L before the first step; with "
+                         "constants=oracle it is given L and mu and counts none, as in the "
+                         "method paper)")
+    return ("<p class='note'>Set-up products counted in the E-MVPs: " + "; ".join(notes)
+            + ".</p>") if notes else ""
 
 
 def references_section(results: pd.DataFrame,

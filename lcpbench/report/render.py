@@ -17,7 +17,7 @@ import json
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -27,6 +27,7 @@ from lcpbench.report import fidelity_map, offline, paper_online, plots, tables
 from lcpbench.report.colors import solver_colors
 from lcpbench.report.fidelity import fidelity_section
 from lcpbench.report.markup import html_table, markdown_table
+from lcpbench.report.paper_html import paper_html
 from lcpbench.run.store import RunStore, atomic_write
 from lcpbench.workflows.fidelity import stored_set_specs, user_cache_dir
 
@@ -37,8 +38,7 @@ body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em a
 max-width:1200px;color:#222;padding:0 1em}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 table{border-collapse:collapse;font-size:.85em;margin:.5em 0 1.5em;max-width:100%}
-th,td{border:1px solid #ddd;padding:.25em .5em;text-align:right}
-td{overflow-wrap:break-word}
+th,td{border:1px solid #ddd;padding:.25em .5em;text-align:right;overflow-wrap:anywhere}
 table.text td{text-align:left}
 th{background:#f3f3f3}td:first-child{text-align:left}
 td.text{text-align:left}
@@ -106,6 +106,7 @@ class _Page:
     fig: Callable[[str], str]                         # an SVG as a numbered figure
     write: Callable[[str, pd.DataFrame], None]        # a table to DIR/tables/
     say: Callable[[str], None]
+    views: list = field(default_factory=list)         # offline sets on common ground
 
 
 def render_report(path, baseline: str = BASELINE_SOLVER,
@@ -158,6 +159,7 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
                  lambda name, df: _write_table(tdir, name, df), say)
     say("offline tables and figures, per problem set")
     page.write("offline", tables.offline_table(res))
+    page.views = offline.set_views(res, page.hist)
     sections = [section for build in SECTIONS for section in build(page)]
     text = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             "<title>lcpbench report</title><style>" + _CSS + "</style></head><body>"
@@ -169,22 +171,46 @@ def render_report(path, baseline: str = BASELINE_SOLVER,
     return out
 
 
-def _offline_sections(page: _Page) -> list[Section]:
-    """The summary, the run's metadata and one section per problem set."""
-    views = offline.set_views(page.res, page.hist)
+def _summary_sections(page: _Page) -> list[Section]:
+    """The summary: per set the best solver and each solver's ratio to the baseline."""
+    views = page.views
     out = []
     if views:
-        summary = offline.summary_table(views, page.meta)
+        stats = offline.ratio_stats(views, page.baseline)
+        summary = offline.summary_table(views, page.baseline, stats)
         page.write("summary", summary)
+        b = html.escape(page.baseline)
+        grids = offline.ratio_tables(views, page.baseline, stats)
+        page.write("ratios", pd.concat(grids, ignore_index=True) if grids else pd.DataFrame())
         out.append(Section("summary", "Summary", (
             "<h2 id='summary'>Summary</h2><p class='note'>Per problem set: its "
             "problem size n, the instances compared (those every compared solver "
-            "was given, of the set's), the solvers compared, and at each residual "
-            "level the solver with the lowest shifted geometric mean of the E-MVPs "
-            "to first reach it (a run that never reached it counts at the penalty): "
-            "its median E-MVPs over its runs that reached the level, and how many "
-            "did.</p>" + html_table(summary, text=True))))
-    out.append(Section("run", "Run", _meta_section(page.meta, page.res)))
+            "was given, of the set's), the solvers compared, the solver with the lowest "
+            f"median ratio of its E-MVPs to {b}'s (per instance; an instance it did not "
+            "solve counts as an infinite ratio) with the 25-75 % quartiles of the ratios "
+            "and its solved count, and at each residual level the solver with the lowest "
+            "median E-MVPs to first reach it (a run that never reached it counting as "
+            "infinitely many), that median and how many runs reached the level. Every cell "
+            "shows the statistic its solver was chosen by.</p>"
+            + html_table(summary, text=True)
+            + f"<p class='caption'>Each solver's median ratio to {b} [25 %-75 %], solved "
+            "count, per set</p><p class='note'>Ratios per instance of the set's compared "
+            f"instances that {b} solved; below 1 is cheaper than {b}.</p>"
+            + "".join(html_table(g, text=True) for g in grids))))
+    return out
+
+
+def _paper_sections(page: _Page) -> list[Section]:
+    """Beside the method paper: its offline table next to each paper-like set, and its
+    online table next to the online rows (:mod:`lcpbench.report.paper_section`)."""
+    html_text = paper_html(page.views, page.res, page.baseline, page.write)
+    return [Section("paper", "Beside the method paper", html_text)] if html_text else []
+
+
+def _offline_sections(page: _Page) -> list[Section]:
+    """The run's metadata and one section per problem set."""
+    views = page.views
+    out = [Section("run", "Run", _meta_section(page.meta, page.res))]
     if not views:
         return out
     shift = offline.ranking.SHIFT["emvps"]
@@ -248,7 +274,7 @@ def _fidelity_study_sections(page: _Page) -> list[Section]:
 
 #: The page's sections, in order.
 SECTIONS: tuple[Callable[[_Page], list[Section]], ...] = (
-    _offline_sections, _references_sections, _failures_sections, _online_sections,
+    _summary_sections, _paper_sections, _offline_sections, _references_sections, _failures_sections, _online_sections,
     _fidelity_map_sections, _fidelity_study_sections)
 
 
@@ -296,7 +322,8 @@ def _online_html(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
                      "the steps without contacts are set apart: no speedup is given.</p>")
     else:
         parts.append(html_table(tables.online_paper_display(paper)))
-        parts.append(_beside_paper_html(paper, baseline))
+        parts.append("<p class='note'>The same rows beside the method paper's online table: "
+                     "<a href='#paper'>Beside the method paper</a>.</p>")
     steps = tables.online_step_rows(res)
     if len(steps) and pd.to_numeric(steps["emvps"], errors="coerce").notna().any():
         groups = list(dict.fromkeys(steps["size"]))
@@ -321,20 +348,6 @@ def _online_html(res: pd.DataFrame, paper: pd.DataFrame, baseline: str,
                  "and the steps solved (verified).</p>")
     parts.append(html_table(tables.online_table(res, baseline)))
     return "\n".join(parts)
-
-
-def _beside_paper_html(paper: pd.DataFrame, baseline: str) -> str:
-    """The measured online table beside the method paper's (:mod:`.paper_online`)."""
-    both = paper_online.beside_paper(paper, baseline)
-    both["collision share"] = [f"{v:.0%}" if pd.notna(v) else "-"
-                               for v in both["collision share"]]
-    return ("<h3>Beside the method paper's online table</h3><p class='note'>Per lattice size, "
-            "the measured row(s) above and the paper's (200 time steps, 24 cores, a Stokes FMM "
-            "far field): the baseline's summed seconds, the share of its step that collision "
-            "resolution takes (the paper's premise is that it dominates a step), and the "
-            "speedups of Mono-PQN and Bi-PQN. Seconds of different machines do not compare; "
-            "shares and speedups do.</p>"
-            + html_table(tables.online_paper_display(both)))
 
 
 def _common_steps_note(res: pd.DataFrame) -> str:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER
+from lcpbench.report.online_cost import with_model_emvps
 from lcpbench.report.ranking import common_ground, emvp_stats, ranked_runs, ranking_table
 
 __all__ = ["reach_table", "offline_table", "paper_tables", "failures_table", "work_precision",
@@ -313,7 +314,8 @@ def online_runs(results: pd.DataFrame) -> pd.DataFrame:
     A step counts as finished when it has both its collision-resolution seconds
     (``time_s``) and its whole-step seconds (``sim_total_s``); the row of a step
     that stopped a simulation (diverged forces, a rejected configuration) has
-    neither and is left out.
+    neither and is left out. ``emvps`` is the cost model's where recorded, the timed
+    E-MVPs in ``timed_emvps`` (:func:`lcpbench.report.online_cost.with_model_emvps`).
     """
     if results.empty or "kind" not in results.columns:
         return results.iloc[0:0]
@@ -323,7 +325,7 @@ def online_runs(results: pd.DataFrame) -> pd.DataFrame:
     t = pd.to_numeric(on["time_s"], errors="coerce")
     tot = pd.to_numeric(on.get("sim_total_s", pd.Series(np.nan, index=on.index)),
                         errors="coerce")
-    return on[np.isfinite(t) & np.isfinite(tot)]
+    return with_model_emvps(on[np.isfinite(t) & np.isfinite(tot)])
 
 
 def lattice_side(problem_params) -> int | None:
@@ -486,7 +488,7 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
     then the median E-MVPs, median high-fidelity MVPs and median
     application-weighted cost (``app_cost``: products weighted by the inner
     applications they took, in cold high products; NaN for stores written before
-    it) per step of every solver. Total seconds are the whole step (``sim_total_s``), collision
+    it) and median per-step timed E-MVPs per step of every solver. Total seconds are the whole step (``sim_total_s``), collision
     resolution the LCP solve (``time_s``).
 
     ``attrs["stored"]`` maps each scene to ``{solver: finished steps stored}``
@@ -523,7 +525,8 @@ def online_paper_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -
         for s in solvers:
             g = part[part["solver"] == s]
             for col, what in (("emvps", "median E-MVPs"), ("mvps", "median MVPs"),
-                              ("app_cost", "median app cost")):
+                              ("app_cost", "median app cost"),
+                              ("timed_emvps", "median timed E-MVPs")):
                 v = (pd.to_numeric(g[col], errors="coerce").dropna() if col in g
                      else pd.Series(dtype=float))
                 row[f"{s} {what}"] = float(v.median()) if len(v) else np.nan

@@ -54,7 +54,7 @@ from lcpbench.core.registry import SolverInfo, get_solver
 from lcpbench.core.residuals import make_stop_rule
 from lcpbench.core.scene import Scene, StepRecord, step_scene
 from lcpbench.core.specs import make_params, parse_spec
-from lcpbench.run.runner import result_fields
+from lcpbench.run.runner import machine_info, result_fields
 from lcpbench.run.store import RunStore, refuse_link
 from lcpbench.workflows.checkpoint import (
     Checkpoint,
@@ -62,6 +62,7 @@ from lcpbench.workflows.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from lcpbench.workflows.cost_model import CostModel
 from lcpbench.workflows.regimes import DEFAULT_REGIME, REGIMES, apply_regime
 
 __all__ = ["simulate", "DEFAULT_OVERLAP_TOL", "DEFAULT_QN_MEMORY", "Interrupted"]
@@ -198,6 +199,7 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
     with store.lock():
         resumed = {s: _resume_point(store, run, s) for s in specs}
         meta = _start_meta(store, run, specs, int(steps), probe, argv)
+        costs = _cost_model(store, meta, run.scene_spec)
         in_main = threading.current_thread() is threading.main_thread()
         _TERM.clear()
         previous = signal.signal(signal.SIGTERM, _request_stop) if in_main else None
@@ -210,7 +212,8 @@ def simulate(scene_spec: str, solver_spec: Union[str, Sequence[str]], steps: int
                 sims.append(_one_simulation(SimulationJob(
                     store=store, scene=scene, run=run, spec=spec, name=name, info=info,
                     steps=int(steps), progress=progress, ckpt_path=path, ckpt=ckpt,
-                    lows=_lows_for(spec, info, scene.params.low), position=k)))
+                    lows=_lows_for(spec, info, scene.params.low), position=k,
+                    costs=costs)))
             frames = _round_robin(sims)
         except Interrupted:
             raise Interrupted(f"stopped by SIGTERM; every finished step is in {store.path}, "
@@ -291,6 +294,7 @@ class SimulationJob:
     ckpt: Optional[Checkpoint]
     lows: tuple
     position: int
+    costs: CostModel
 
 
 def _check_inputs(solver_spec, steps, overlap_tol) -> list:
@@ -333,6 +337,22 @@ def _resume_point(store: RunStore, run: SimSettings, spec: str
                          f"with {spec!r} but no checkpoint to resume from; choose another "
                          "--out")
     return path, None
+
+
+def _cost_model(store: RunStore, meta: dict, scene_spec: str) -> CostModel:
+    """The run's cost model of the low fidelities (:mod:`lcpbench.workflows.cost_model`):
+    the constants an earlier run of this store recorded in ``meta.json``, new ones
+    written there as soon as they are calibrated."""
+    recorded = dict((meta.get("cost_model") or {}).get(scene_spec) or {})
+    machine = machine_info()
+
+    def persist(entries: dict) -> None:
+        meta.setdefault("cost_model", {})[scene_spec] = dict(entries)
+        store.write_meta(meta)
+
+    return CostModel(scene_spec, entries=recorded,
+                     machine={k: machine.get(k) for k in ("cpu", "cpu_count", "threads")},
+                     persist=persist)
 
 
 def _start_meta(store: RunStore, run: SimSettings, specs: list, steps: int, probe,
@@ -447,7 +467,9 @@ def _one_simulation(job: SimulationJob):
                 commit(row, None, finished=True)
                 print(f"lcpbench simulate: {spec}: {exc}", file=sys.stderr)
                 break
+            job.costs.observe(rec.result, f"step {rec.step} of {spec}")
             row = _step_row(base.row(rec.step), rec, limit, run.regime)
+            row["model_emvps"] = job.costs.emvps(rec.result)
             row.update({"started": started, "finished": utc_now()})
             commit(row, rec.result.history, finished=False)
             bar.set_postfix(n=rec.n, emvps=f"{rec.result.emvps:.1f}",
@@ -474,7 +496,8 @@ def _step_row(row: dict, rec: StepRecord, limit: float, regime: str) -> dict:
              "warm_entries": rec.warm_entries,
              "min_gap": rec.min_gap, "overlap_ok": not over, "overlap_tol": limit,
              **(res.info or {}), "qn_memory": rec.qn_memory, "qn_pairs": rec.qn_pairs,
-             "regime": regime, "load_1min": (_load_average() or [None])[0]}
+             "regime": regime, "load_1min": (_load_average() or [None])[0],
+             "lofi_applications": dict(res.lofi_applications or {})}
     row.update({
         "n": rec.n, "status": res.status.value, "message": message,
         **result_fields(res), "sim_total_s": rec.total_s,
