@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 import traceback
@@ -42,6 +43,11 @@ __all__ = ["solve", "run_solver", "requested_lows", "DEFAULT_SOLVER"]
 
 
 
+#: Largest n of an explicit matrix whose iterates :func:`solve` verifies by default
+#: (``verify_history``): beyond it the verified history costs about what the solve does.
+VERIFY_HISTORY_MAX_N = 500
+
+
 def requested_lows(params: dict, solver: Optional[str] = None) -> list[str]:
     """Low-fidelity operator names a solver's parameter values ask for.
 
@@ -75,7 +81,8 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
                tol: float = 1e-8, budget: Optional[Budget] = None,
                x0: Optional[np.ndarray] = None, state: Any = None,
                verify_history: Optional[bool] = None, callback: Optional[Callable] = None,
-               params: Optional[dict] = None, force: bool = False) -> SolveResult:
+               params: Optional[dict] = None, force: bool = False,
+               verify: bool = True) -> SolveResult:
     """Run one registered solver on ``lcp`` and verify the answer.
 
     Parameters
@@ -105,13 +112,17 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
     force : bool
         Form the dense A for a solver that needs it even past the dense-conversion
         limit of :mod:`lcpbench.core.guards` (never past the available memory).
+    verify : bool
+        Verify the answer (default; see :func:`solve`).
 
     Returns
     -------
     SolveResult
         With the solver's claim (a ``converged`` confirmed by a fresh counted
         product, see :mod:`lcpbench.core.claims`), the operator-counted MVPs and
-        E-MVPs, and the framework's verified residuals (one uncounted product).
+        E-MVPs, the framework's verified residuals (one uncounted product, none
+        when the operator is exact and its last product was at the returned ``x``)
+        and ``framework_mvps``, every product the framework made beside the solver's.
         An exception from the solver or from a user operator gives a ``failed``
         result naming it; it never escapes. So does a dense A refused up front or
         out of memory.
@@ -161,7 +172,8 @@ def run_solver(lcp: LCP, solver: str = DEFAULT_SOLVER, *, stop: Union[str, StopR
             ctx.detach()
         check_infeasibility(ctx, res)         # a solver's own 'infeasible' is checked too
     res.time_s = ctx.elapsed()
-    return _complete(res, run, ctx, info, p)
+    ctx.verify_history()
+    return _complete(res, run, ctx, info, p, verify)
 
 
 def _dense_refused(run: LCP, info, force: bool) -> Optional[str]:
@@ -252,7 +264,9 @@ def _call_solver(info, ctx: SolverContext, p) -> SolveResult:
             raise TypeError(f"solver {info.name!r} returned {type(res).__name__}, "
                             "expected a SolveResult (use ctx.finish(x, w))")
         # the framework's checks work on their own record: the solver's object stays as made
-        return dataclasses.replace(res, info=dict(res.info))
+        mine = copy.copy(res)
+        mine.info = dict(res.info)
+        return mine
     except BudgetExhausted as exc:
         return _close_at_last(ctx, Status.timeout if exc.kind == "time" else Status.budget,
                               str(exc))
@@ -311,12 +325,21 @@ def _checked_answer(res: SolveResult, run: LCP, ctx: SolverContext) -> tuple[np.
 
 def _verified(ctx: SolverContext, run: LCP, x: np.ndarray, status: Status, message: str
               ) -> tuple[dict, Status, str]:
-    """The framework's residuals at ``x`` (one uncounted product) and the claim held to them."""
+    """The framework's residuals at ``x`` and the claim held to them.
+
+    One uncounted product, or none when the operator is exact and reproducible (a
+    float64 matrix, or one that declares ``rtol=0``) and its last counted product was
+    at exactly ``x``: that product is the operator's own answer at ``x``, kept by the
+    operator, not the solver's ``w``.
+    """
     if not np.all(np.isfinite(x)):
         return {"kkt_abs": float("nan")}, status, message
     verified = {"kkt_abs": float("nan")}
     try:
-        w_verified = run.residual_w(x)
+        Ax = run.A.last_product(x) if ctx.measured_exact() and run.n else None
+        if Ax is not None:
+            ctx.info["verified_by"] = "the operator's last product"
+        w_verified = run.residual_w(x) if Ax is None else Ax + run.b
         verified = all_residuals(x, w_verified, run.b)
         # never 'converged' against the verification
         status, message = verify_claim(ctx, status, x, w_verified, message)
@@ -334,11 +357,13 @@ def _verified(ctx: SolverContext, run: LCP, x: np.ndarray, status: Status, messa
     return verified, status, message
 
 
-def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> SolveResult:
+def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params,
+              verify: bool = True) -> SolveResult:
     """The result of the solve: the solver's answer checked, counted and verified, built once.
 
     The solver's own ``SolveResult`` supplies ``x``, ``w``, the claim, ``time_s``,
-    ``state`` and its ``info``; everything else is the framework's.
+    ``state`` and its ``info``; everything else is the framework's. Without
+    ``verify`` the claim stands unverified (``info['unverified']``, ``solved`` False).
     """
     x, status, message = _checked_answer(res, run, ctx)
     try:
@@ -358,13 +383,19 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params) -> S
             "operator_seconds": {k: float(op.seconds) for k, op in used.items()},
             "operator_cost": {k: op.cost for k, op in used.items()}}
     claimed = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
-    verified, status, message = _verified(ctx, run, x, status, message)
+    if verify:
+        verified, status, message = _verified(ctx, run, x, status, message)
+    else:
+        verified = {"kkt_abs": float("nan")}
+        ctx.info["unverified"] = True
+    framework = int(sum(op.framework_products for op in run.operators().values()))
     return SolveResult(
         x=x, w=res.w, status=status, message=message, mvps=mvps, lofi_mvps=lofi_mvps,
         emvps=emvps, applications=run.A.applications, app_cost=app_cost,
         lofi_applications={k: op.applications for k, op in run.low.items()},
         iterations=ctx.iterations, time_s=res.time_s, mvp_time_s=mvp_time_s,
-        history=ctx.monitor.frame(), claimed_kkt_abs=claimed, verified=verified,
+        framework_mvps=framework,
+        history=ctx.monitor.frame, claimed_kkt_abs=claimed, verified=verified,
         solved=bool(verified["kkt_abs"] <= ctx.threshold and "float64_floor" not in verified),
         threshold=ctx.threshold,
         solver=info.name, params=dataclasses.asdict(params), mvp_only=info.mvp_only,
@@ -376,6 +407,7 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
           max_seconds: Optional[float] = None, max_iter: int = 5000, low: Optional[dict] = None,
           low_cost: Union[float, dict, None] = None, shape: Optional[tuple] = None,
           state: Any = None, callback: Optional[Callable] = None, force: bool = False,
+          psd: bool = False, verify: bool = True, verify_history: Optional[bool] = None,
           **params) -> SolveResult:
     """Solve the LCP ``0 <= x _|_ A x + b >= 0``.
 
@@ -421,6 +453,23 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         Let a solver that needs the explicit matrix form it past the dense-conversion
         limit (2 GiB, see :mod:`lcpbench.core.guards`); without it such a solve is
         ``failed`` with the estimate in its message.
+    psd : bool
+        Declare ``A`` positive semidefinite: the definiteness test of an explicit
+        matrix (a Cholesky factorisation, about ``n^3 / 3`` operations, the cost of
+        a whole solve at n = 1500) is skipped. Without it the test is made once per
+        operator: wrap ``A`` once in :class:`lcpbench.Operator` and pass that to
+        every solve to check it once.
+    verify : bool
+        Verify the answer (default). ``False`` returns the solver's claim as it
+        stands, marked ``info['unverified'] = True``: no verifying product, the
+        ``verified`` residuals nan and ``solved`` False (what a time stepper that
+        trusts the solver's confirmed claim needs); the runner always verifies.
+    verify_history : bool, optional
+        Record the verified residual of every iterate (uncounted products, one block
+        product after the solve). Default: for explicit matrices up to
+        n = :data:`VERIFY_HISTORY_MAX_N`, where it costs little beside the solve;
+        beyond, it would cost about as much as the solver's own products, so it is
+        off unless asked for (``lcpbench run`` records it for every explicit matrix).
     **params
         Solver parameters (checked against the solver's parameter dataclass); a
         misspelt keyword of this function (``tolerance=``) is named as such.
@@ -461,10 +510,13 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
         A, lows = _with_costs(_operator(A_or_lcp, "high", shape, n),
                               {k: _operator(v, k, shape, n) for k, v in (low or {}).items()},
                               low_cost)
-        lcp = LCP(A, b, low=lows)
+        lcp = LCP(A, b, low=lows, psd_check=not psd)
     budget = Budget(max_emvps=max_emvps, max_seconds=max_seconds, max_iter=max_iter)
+    if verify_history is None:
+        verify_history = lcp.A.explicit and lcp.n <= VERIFY_HISTORY_MAX_N
     res = run_solver(lcp, solver, stop=stop, tol=tol, budget=budget, x0=x0, state=state,
-                     callback=callback, params=params, force=force)
+                     verify_history=verify_history, callback=callback, params=params,
+                     force=force, verify=verify)
     clocked = [name for name, op in [("high", lcp.A), *lcp.low.items()]
                if op.declared_cost is None]
     if clocked and any(res.lofi_mvps.values()):
@@ -477,7 +529,8 @@ def solve(A_or_lcp, b=None, *, solver: str = DEFAULT_SOLVER, tol: float = 1e-8,
 
 #: The keywords of :func:`solve` itself, offered for a misspelt one.
 _SOLVE_KEYWORDS = ("solver", "tol", "stop", "x0", "max_emvps", "max_seconds", "max_iter", "low",
-                   "low_cost", "shape", "state", "callback", "force")
+                   "low_cost", "shape", "state", "callback", "force", "psd", "verify",
+                   "verify_history")
 #: Other libraries' names of solve's keywords.
 _SOLVE_ALIASES = {"tolerance": "tol", "eps": "tol", "atol": "tol", "rtol": "tol",
                   "maxiter": "max_iter", "max_iterations": "max_iter", "timeout": "max_seconds",

@@ -98,6 +98,7 @@ def confirm_convergence(ctx: SolverContext, res: SolveResult) -> SolveResult:
             return res
         if ctx.A.count > before:
             ctx.info["confirmation_mvps"] = ctx.info.get("confirmation_mvps", 0) + 1
+            ctx.A.framework_products += 1
     fresh = kkt_abs(x, Ax + ctx.b)
     ctx.info["confirmed_kkt_abs"] = fresh
     if fresh <= ctx.threshold:
@@ -322,6 +323,7 @@ def infeasibility_evidence(ctx: SolverContext, res: SolveResult) -> Optional[flo
             ctx.info["infeasibility_check_error"] = f"{type(exc).__name__}: {exc}"
             return None
         ctx.info["infeasibility_mvps"] = ctx.info.get("infeasibility_mvps", 0) + 1
+        ctx.A.framework_products += 1
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             verdict = _certificate(ctx, cand, Ad, x, w)
         if not isinstance(verdict, str):

@@ -30,7 +30,7 @@ import pandas as pd
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench.core.lcp import LCP
-from lcpbench.core.operator import BudgetExhausted, Operator, apply_uncounted
+from lcpbench.core.operator import BudgetExhausted, Operator, all_finite, apply_uncounted
 from lcpbench.core.probes import Accuracy, measure_accuracy, safe_norm
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
@@ -115,9 +115,34 @@ class Monitor:
         self.callback = callback
         self.rows: list[dict] = []
         self.seconds = 0.0
+        #: Columns a solver added with ``ctx.report(x, w, name=value)``, in order of appearance.
+        self.extra_columns: list[str] = []
 
     def frame(self) -> pd.DataFrame:
-        return pd.DataFrame(self.rows, columns=HISTORY_COLUMNS)
+        """The rows as a table: :data:`HISTORY_COLUMNS`, then the solver's own columns."""
+        return pd.DataFrame(self.rows, columns=HISTORY_COLUMNS + self.extra_columns)
+
+    def record_extra(self, row: dict, extra: dict) -> None:
+        """Add a solver's own values to ``row`` as history columns, or refuse them.
+
+        Raises
+        ------
+        TypeError
+            A value that is not a real number, or a name of a framework column.
+        """
+        for key, value in extra.items():
+            if key in HISTORY_COLUMNS:
+                raise TypeError(f"ctx.report(..., {key}=...): {key!r} is a column the framework "
+                                "records itself; give the solver's own value another name")
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float,
+                                                                             np.integer,
+                                                                             np.floating)):
+                raise TypeError(f"ctx.report(..., {key}={value!r}): extra values are recorded "
+                                "as history columns and must be real numbers; put other "
+                                "records in ctx.info")
+            row[key] = float(value)
+            if key not in self.extra_columns:
+                self.extra_columns.append(key)
 
 
 class SolverContext:
@@ -170,6 +195,8 @@ class SolverContext:
         self._recent: deque = deque(maxlen=max(3, min(RECENT_ITERATES, room)))
         self._offered: deque = deque(maxlen=max(3, min(OFFERED_DIRECTIONS, room)))
         self._certified: Optional[tuple[np.ndarray, float]] = None
+        #: History rows whose verified residual is still to be computed, with their x.
+        self._unverified: list[tuple[dict, np.ndarray]] = []
         self._accuracy: Optional[Accuracy] = None
         #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
         #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
@@ -181,7 +208,7 @@ class SolverContext:
             self.info["accuracy_floor"] = self.accuracy_floor
             self._threshold = self.accuracy_floor
         for op in lcp.operators().values():
-            op._guard = self._guard
+            op.install_guard(self._guard)
 
     # ------------------------------------------------------------------ clock
     def start(self) -> None:
@@ -245,8 +272,9 @@ class SolverContext:
         return self._accuracy
 
     def measured_exact(self) -> bool:
-        """True when the operator is a float64 matrix or was already measured exact (no probe)."""
-        if self.A.explicit and self.A.rtol is None:
+        """True when the operator is a float64 matrix, declares itself exact (``rtol=0``) or
+        was already measured exact (no probe)."""
+        if (self.A.explicit and self.A.rtol is None) or self.A.rtol == 0.0:
             return True
         return self._accuracy is not None and self._accuracy.exact
 
@@ -281,13 +309,16 @@ class SolverContext:
 
     def detach(self) -> None:
         for op in self.lcp.operators().values():
-            op._guard = None
+            op.install_guard(None)
 
     # ------------------------------------------------------------------ monitor
     def report(self, x: np.ndarray, w: np.ndarray, **extra: Any) -> bool:
         """Record iterate ``x`` with the solver's ``w = A x + b``; True means stop.
 
-        Applies the stop rule (absolute test -> ``converged``; the paper's
+        Keyword arguments are the solver's own numbers for this iterate (a step
+        length, an inner iteration count): each is recorded as a history column of
+        its name; anything else is refused with a ``TypeError``
+        (:meth:`Monitor.record_extra`). Applies the stop rule (absolute test -> ``converged``; the paper's
         relative test alone -> ``stagnated``), the iteration cap and the time
         budget, and flags non-finite iterates as ``diverged``. The time spent
         here is not charged to the solver.
@@ -298,17 +329,19 @@ class SolverContext:
         x = np.asarray(x, dtype=np.float64)
         w = np.asarray(w, dtype=np.float64)
         it = len(self.monitor.rows)
-        finite = bool(np.all(np.isfinite(x)) and np.all(np.isfinite(w)))
+        finite = all_finite(x) and all_finite(w)
         e_abs = kkt_abs(x, w) if finite else float("nan")
         e_rel = kkt_rel(e_abs, self._prev_kkt)
         verified = float("nan")
-        if self.monitor.verify and finite:
-            verified = kkt_abs(x, apply_uncounted(self.A, x) + self.b)
+        if self.monitor.verify and finite and self.monitor.callback is not None:
+            verified = kkt_abs(x, apply_uncounted(self.A, x) + self.b)    # the callback's row
         lofi = sum(op.count for op in self.low.values())
         row = {"iter": it, "mvps": self.A.count, "lofi_mvps": lofi,
                "emvps": self.lcp.emvps(), "kkt_abs": e_abs, "kkt_rel": e_rel,
                "objective": objective(x, w, self.b) if finite else float("nan"),
                "time_s": self.elapsed(), "kkt_abs_verified": verified}
+        if extra:
+            self.monitor.record_extra(row, extra)
         self.monitor.rows.append(row)
         if finite:
             # overflow-safe: a warm start of 1e300 must not turn the estimate into inf or nan
@@ -322,6 +355,10 @@ class SolverContext:
                         self._raise_norm_A(safe_norm(w - self._last[1]) / dx)
             self._prev, self._last = self._last, (x.copy(), w.copy())
             self._recent.append(self._last)
+            if self.monitor.verify and self.monitor.callback is None:
+                self._unverified.append((row, self._last[0]))
+                if len(self._unverified) * self.n >= WINDOW_FLOATS:
+                    self.verify_history()
         stop = False
         if not finite:
             self.status, self.message = Status.diverged, "non-finite iterate or residual"
@@ -375,6 +412,26 @@ class SolverContext:
                                 + (f": {exc}" if str(exc) else ""))
             return True
         return stop
+
+    def verify_history(self) -> None:
+        """Fill the verified residual of the iterates recorded since the last call.
+
+        One uncounted block product over their ``x`` (a matrix-matrix product, several
+        times cheaper per column than one product per iterate), made when the window
+        of :data:`WINDOW_FLOATS` fills and when the solve ends; the time is not charged
+        to the solver. An iterate reported to a ``callback`` is verified at once
+        instead, so that the callback's row carries it.
+        """
+        if not self._unverified:
+            return
+        t0 = time.perf_counter()
+        rows, xs = zip(*self._unverified)
+        self._unverified = []
+        X = np.column_stack(xs)
+        W = apply_uncounted(self.A, X) + self.b[:, None]
+        for row, e in zip(rows, np.linalg.norm(np.minimum(X, W), axis=0)):
+            row["kkt_abs_verified"] = float(e)
+        self.monitor.seconds += time.perf_counter() - t0
 
     def _raise_norm_A(self, ratio: float) -> None:
         if np.isfinite(ratio):

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 
 from lcpbench.core.operator import Operator, apply_uncounted, as_operator, dense_uncounted
@@ -25,13 +26,62 @@ SYMMETRY_RTOL = 1e-10
 PSD_CHECK_MAX_N = 2000
 
 
+#: Rows per block of the symmetry check (:func:`_asymmetry`): a block and its transposed
+#: counterpart stay in cache, and no temporary of the matrix's size is formed.
+SYMMETRY_BLOCK = 128
+
+
+def _asymmetry(M: np.ndarray) -> float:
+    """``max|M - M'|`` of a dense matrix, block by block over its upper triangle."""
+    n = M.shape[0]
+    worst = 0.0
+    for i in range(0, n, SYMMETRY_BLOCK):
+        j = i + SYMMETRY_BLOCK
+        worst = max(worst, float(np.max(np.abs(M[i:j, i:] - M[i:, i:j].T))))
+    return worst
+
+
+def _nonfinite_entry(name: str, M: np.ndarray) -> ValueError:
+    bad = np.argwhere(~np.isfinite(M))[0]
+    return ValueError(f"LCP field {name}: entry {tuple(int(i) for i in bad)} is "
+                      f"{M[tuple(bad)]}; all entries must be finite")
+
+
+def _semidefinite(M, n: int, scale: float) -> Optional[float]:
+    """None when ``M`` is positive semidefinite to ``1e-8 max|M| n``, else its smallest eigenvalue.
+
+    The cheap test is a Cholesky factorisation of ``M + tau I`` with that ``tau``
+    (about ``n^3 / 3`` operations, a tenth of an eigenvalue computation): it succeeds
+    exactly when the smallest eigenvalue exceeds ``-tau``, to a rounding far below
+    ``tau``. Only when it fails are the eigenvalues computed, for the message (and a
+    borderline matrix the factorisation refused is accepted when they are within
+    ``-tau``).
+    """
+    dense = M.toarray() if sp.issparse(M) else np.array(M, dtype=np.float64)
+    # Relative to max|A| (not to max(max|A|, 1)): -1e-9 I is negative definite too.
+    tau = 1e-8 * scale * n
+    dense[np.diag_indices(n)] += tau
+    try:
+        scipy.linalg.cholesky(dense, lower=True, overwrite_a=True, check_finite=False)
+        return None
+    except np.linalg.LinAlgError:
+        pass
+    dense = M.toarray() if sp.issparse(M) else np.asarray(M)
+    lam_min = float(np.linalg.eigvalsh((dense + dense.T) / 2)[0])
+    return lam_min if lam_min < -tau else None
+
+
 def _check_explicit(name: str, M, n: int, symmetric_rtol: float, psd: bool = True) -> None:
     """Finite entries, symmetry and (up to :data:`PSD_CHECK_MAX_N`) semidefiniteness.
 
     A sparse matrix is checked on its stored entries and its sparse transpose;
-    it is densified only for the eigenvalue check, and only up to
+    it is densified only for the definiteness test, and only up to
     :data:`PSD_CHECK_MAX_N`, so validation never costs more memory than the
-    matrix itself beyond that size.
+    matrix itself beyond that size. A dense matrix costs two passes over it
+    (its extreme entries, its symmetry block by block) and the Cholesky test of
+    :func:`_semidefinite`; an operator keeps what was checked
+    (:meth:`~lcpbench.core.operator.Operator.checked`), so the same matrix is
+    checked once however many problems are built on it.
     """
     if sp.issparse(M):
         M = sp.csr_matrix(M)
@@ -45,22 +95,19 @@ def _check_explicit(name: str, M, n: int, symmetric_rtol: float, psd: bool = Tru
         diff = (M - M.T).tocsr()
         asym = float(np.max(np.abs(diff.data))) if diff.nnz else 0.0
     else:
-        if not np.all(np.isfinite(M)):
-            bad = np.argwhere(~np.isfinite(M))[0]
-            raise ValueError(f"LCP field {name}: entry {tuple(int(i) for i in bad)} is "
-                             f"{M[tuple(bad)]}; all entries must be finite")
-        scale = float(np.max(np.abs(M))) if M.size else 0.0
-        asym = float(np.max(np.abs(M - M.T))) if M.size else 0.0
+        hi, lo = (float(M.max()), float(M.min())) if M.size else (0.0, 0.0)
+        if not (np.isfinite(hi) and np.isfinite(lo)):
+            raise _nonfinite_entry(name, M)
+        scale = max(abs(hi), abs(lo))
+        asym = _asymmetry(M) if M.size else 0.0
     if asym > symmetric_rtol * max(scale, np.finfo(float).tiny):
         raise ValueError(
             f"LCP field {name}: matrix is not symmetric (max|A-A'| = {asym:.3g}, "
             f"{asym / scale:.3g} relative > {symmetric_rtol:g}); symmetrise it with "
             "(A + A.T) / 2 or pass symmetric_rtol= to accept it")
     if psd and 0 < n <= PSD_CHECK_MAX_N and scale > 0:
-        dense = M.toarray() if sp.issparse(M) else M
-        lam_min = float(np.linalg.eigvalsh((dense + dense.T) / 2)[0])
-        # Relative to max|A| (not to max(max|A|, 1)): -1e-9 I is negative definite too.
-        if lam_min < -1e-8 * scale * n:
+        lam_min = _semidefinite(M, n, scale)
+        if lam_min is not None:
             raise ValueError(
                 f"LCP field {name}: matrix is not positive semidefinite (smallest eigenvalue "
                 f"{lam_min:.3g}); the symmetric LCP needs A >= 0. Pass psd_check=False to "
@@ -92,9 +139,14 @@ class LCP:
         Relative tolerance of the symmetry check for explicit matrices
         (default :data:`SYMMETRY_RTOL`).
     psd_check : bool
-        Check positive semidefiniteness of explicit matrices up to n = 2000
-        (an eigenvalue computation). Low-fidelity operators are never checked
-        for definiteness: an indefinite model is a legitimate test case.
+        Check positive semidefiniteness of explicit matrices up to n = 2000 (a
+        Cholesky factorisation of ``A + tau I``, about ``n^3 / 3`` operations;
+        ``False`` when the caller knows A is semidefinite, e.g.
+        ``lcpbench.solve(..., psd=True)``). The checks of an explicit matrix are
+        made once per :class:`~lcpbench.Operator`: problems built on the same
+        operator (a time stepper's, a benchmark's repeated solves) are not checked
+        again. Low-fidelity operators are never checked for definiteness: an
+        indefinite model is a legitimate test case.
 
     Raises
     ------
@@ -137,8 +189,10 @@ class LCP:
             i = int(np.argmax(~np.isfinite(b)))
             raise ValueError(f"LCP field b: entry {i} is {b[i]}; all entries must be finite")
         self.b = b
-        if self.A.explicit:
-            _check_explicit("A", self.A._impl, n, self.symmetric_rtol, psd=self.psd_check)
+        psd = self.psd_check and n <= PSD_CHECK_MAX_N
+        if self.A.explicit and not self.A.checked(self.symmetric_rtol, psd):
+            _check_explicit("A", self.A._impl, n, self.symmetric_rtol, psd=psd)
+            self.A.mark_checked(self.symmetric_rtol, psd)
         if self.x0 is not None:
             if np.iscomplexobj(self.x0):
                 raise TypeError("LCP field x0: complex values; the LCP is real, pass a real "
@@ -221,11 +275,9 @@ class LCP:
         """
         c = self.A.cost
         if c is None:
-            guard, self.A._guard = self.A._guard, None     # a measurement, not a solver step
-            try:
+            with self.A.unguarded():                        # a measurement, not a solver step
                 self.A @ np.ones(self.n)
-            finally:
-                self.A._guard = guard
+            self.A.framework_products += 1
             c = self.A.measured_cost
         return c
 

@@ -26,8 +26,10 @@ application.  See :meth:`Operator.application_cost` for the application-weighted
 
 from __future__ import annotations
 
+import contextlib
+import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Optional, Union
 
 import numpy as np
@@ -141,6 +143,7 @@ class Operator(LinearOperator):
                  name: str = "high", dtype=np.float64, rtol: Optional[float] = None,
                  work: Optional[Callable[[], WorkCounts]] = None,
                  cold_applications: Optional[float] = None):
+        checks: set[tuple[float, bool]] = set()    # what LCP checked of the matrix
         if isinstance(A, Operator):
             impl = A._impl
             shape = A.shape
@@ -150,6 +153,7 @@ class Operator(LinearOperator):
             cold_applications = (A._declared_cold if cold_applications is None
                                  else cold_applications)
             self._explicit = A._explicit
+            checks = A._checks                     # the same matrix: its checks hold
         elif _explicit_matrix(A):
             arr = A
             if isinstance(arr, np.ndarray):
@@ -188,6 +192,7 @@ class Operator(LinearOperator):
             raise ValueError(f"operator {name!r}: shape must be (n, n), got {shape}")
         super().__init__(dtype=np.dtype(dtype), shape=shape)
         self._impl = impl
+        self._checks: set[tuple[float, bool]] = checks
         if cost is not None:
             cost = float(cost)
             if not np.isfinite(cost) or cost <= 0:
@@ -210,6 +215,10 @@ class Operator(LinearOperator):
         self.loose = 0
         self._loose_now = False
         self.nonfinite_at: Optional[int] = None
+        #: Products the framework made at this operator, not the solver: its uncounted ones
+        #: (verification, accuracy probes, cost timing, ...) and the counted ones it adds
+        #: itself (confirmations, cost calibration), in columns.
+        self.framework_products = 0
         self._guard: Optional[Callable[[Operator, int], None]] = None
         #: The largest machine epsilon of a product's output dtype narrower than float64
         #: (float32: 1.2e-7), 0 while every product came back in float64.
@@ -268,12 +277,42 @@ class Operator(LinearOperator):
         if self._first_apps is None and total > 0 and not self._loose_now:
             self._first_apps = total / k
 
+    def checked(self, symmetric_rtol: float, psd: bool) -> bool:
+        """True when this matrix already passed the problem checks at ``symmetric_rtol``
+        (and the definiteness test when ``psd``): :class:`~lcpbench.LCP` checks a matrix
+        once per operator and its copies, not once per problem built on it."""
+        return any(r <= symmetric_rtol and (p or not psd) for r, p in self._checks)
+
+    def mark_checked(self, symmetric_rtol: float, psd: bool) -> None:
+        """Record that the matrix passed the problem checks (see :meth:`checked`)."""
+        self._checks.add((float(symmetric_rtol), bool(psd)))
+
+    def install_guard(self, guard: Optional[Callable[[Operator, int], None]]) -> None:
+        """Call ``guard(self, k)`` before every counted product of ``k`` columns (None: no guard).
+
+        The framework's budget check: the guard raises
+        :class:`BudgetExhausted` to refuse a product. Solvers never install one.
+        """
+        self._guard = guard
+
+    @contextlib.contextmanager
+    def unguarded(self) -> Iterator[None]:
+        """A context in which counted products are not held to the guard (a measurement
+        the framework makes, not a solver's step)."""
+        guard, self._guard = self._guard, None
+        try:
+            yield
+        finally:
+            self._guard = guard
+
     # ------------------------------------------------------------------ counting
     def _apply(self, X: np.ndarray) -> np.ndarray:
         # A zero column costs nothing: A @ 0 = 0 exactly for any linear operator,
         # so no PDE solve is needed (e.g. the gradient b at the cold start x0 = 0).
-        nonzero = np.any(X != 0, axis=0) if X.ndim == 2 else np.any(X != 0)
-        k = int(np.count_nonzero(nonzero))
+        if X.ndim == 1:
+            k = 1 if np.count_nonzero(X) else 0
+        else:
+            k = int(np.count_nonzero(np.any(X != 0, axis=0)))
         if k == 0:
             return np.zeros(self.shape[0] if X.ndim == 1 else (self.shape[0], X.shape[1]))
         if self._guard is not None:
@@ -285,7 +324,7 @@ class Operator(LinearOperator):
         self._charge(before, k)
         self.count += k
         self.calls += 1
-        if not np.all(np.isfinite(Y)) and np.all(np.isfinite(X)):
+        if not all_finite(Y) and all_finite(X):
             self.nonfinite_at = self.nonfinite_at or self.count
             raise NonFiniteProduct(f"operator returned non-finite values at product "
                                    f"{self.nonfinite_at}"
@@ -430,6 +469,18 @@ class Operator(LinearOperator):
                 f"count={self.count}, applications={self.applications:g}, cost={self.cost}>")
 
 
+def all_finite(v: np.ndarray) -> bool:
+    """True when every entry of ``v`` is finite.
+
+    The largest and the smallest entry settle it (a NaN propagates into both, an
+    infinite entry is one of them) at a fraction of the cost of the element-wise
+    test, and without floating-point warnings.
+    """
+    if v.size == 0:
+        return True
+    return math.isfinite(float(v.max())) and math.isfinite(float(v.min()))
+
+
 def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:
     """``_raw_apply`` that names the operator when its code raises or answers with a wrong shape."""
     try:
@@ -471,9 +522,12 @@ def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:
     """Apply ``op`` without counting or timing: for the framework's verification only.
 
     Solvers must never call this; the test-suite checks that no solver module
-    imports it. Raises :class:`OperatorError` naming the operator when its code fails.
+    imports it. Each column is tallied in ``op.framework_products``. Raises
+    :class:`OperatorError` naming the operator when its code fails.
     """
-    return _checked_apply(op, np.asarray(X, dtype=np.float64))
+    X = np.asarray(X, dtype=np.float64)
+    op.framework_products += 1 if X.ndim == 1 else int(X.shape[1])
+    return _checked_apply(op, X)
 
 
 def dense_uncounted(op: Operator) -> np.ndarray:

@@ -16,6 +16,34 @@ HISTORY_COLUMNS = ["iter", "mvps", "lofi_mvps", "emvps", "kkt_abs", "kkt_rel", "
                    "time_s", "kkt_abs_verified"]
 
 
+class _History:
+    """The ``history`` field of :class:`SolveResult`, built when first read.
+
+    Set to a DataFrame, to a zero-argument callable that builds one (the framework's
+    record of the iterates, turned into a table only when someone reads it: building
+    a pandas frame costs milliseconds, as much as a small solve), or to None (an
+    empty table). The built frame is kept.
+    """
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._key = "_" + name
+
+    def __get__(self, obj: Any, objtype: Any = None) -> Any:
+        if obj is None:
+            return None                      # the dataclass default: an empty table
+        value = obj.__dict__.get(self._key)
+        if value is None or callable(value):
+            value = value() if value is not None else pd.DataFrame(columns=HISTORY_COLUMNS)
+            obj.__dict__[self._key] = value
+        return value
+
+    def __set__(self, obj: Any, value: Any) -> None:
+        if not (value is None or callable(value) or isinstance(value, pd.DataFrame)):
+            raise TypeError(f"SolveResult.history must be a DataFrame, a callable building "
+                            f"one, or None; got {type(value).__name__}")
+        obj.__dict__[self._key] = value
+
+
 class Status(str, enum.Enum):
     """How a solve ended.
 
@@ -80,6 +108,13 @@ class SolveResult:
         same (cold) number of applications; smaller when recycling makes later
         products cheaper.  ``info["applications"]`` has the counts per operator and
         kind (e.g. ``forward`` and ``adjoint`` Krylov applications).
+    framework_mvps : int
+        Products the framework made at the operators beside the solver's: the
+        verification, accuracy probes, cost timing and calibration, the
+        confirmation of a claim, the evidence of infeasibility, the verified
+        history, a dense copy of a matrix-free operator (in columns). The counted
+        ones among them (a confirmation, a calibration) are in ``mvps`` too
+        (``info['confirmation_mvps']``, ``info['infeasibility_mvps']``).
     iterations : int
         Iterates reported to the monitor, minus one (the initial point).
     time_s : float
@@ -87,7 +122,7 @@ class SolveResult:
     mvp_time_s : float
         Seconds spent inside counted products.
     history : pandas.DataFrame
-        One row per iterate, columns :data:`HISTORY_COLUMNS`.
+        One row per iterate, columns :data:`HISTORY_COLUMNS` (built when first read).
     claimed_kkt_abs : float
         ``||min(x, w)||`` at the solver's own ``w``.
     verified : dict
@@ -113,10 +148,11 @@ class SolveResult:
     applications: float = 0.0
     lofi_applications: dict = field(default_factory=dict)
     app_cost: float = 0.0
+    framework_mvps: int = 0
     iterations: int = 0
     time_s: float = 0.0
     mvp_time_s: float = 0.0
-    history: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=HISTORY_COLUMNS))
+    history: _History = _History()
     claimed_kkt_abs: float = float("nan")
     verified: dict = field(default_factory=dict)
     solved: bool = False
@@ -145,6 +181,7 @@ class SolveResult:
         return (f"{self.solver}: {self.status.value} after {self.iterations} it, "
                 f"{self.mvps} MVPs{lo}, {self.emvps:.2f} E-MVPs, "
                 f"{self.applications:g} applications ({self.app_cost:.2f} weighted), "
+                f"{self.framework_mvps} framework products, "
                 f"claimed {self.claimed_kkt_abs:.2e}, verified {self.verified_kkt_abs:.2e}, "
                 f"{'solved' if self.solved else 'NOT solved'}, {self.time_s:.3g} s")
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import numbers
 import typing
@@ -235,6 +236,13 @@ def _check_value(label: str, tp: Any, value: Any) -> None:
             _check_value(f"each of {label}", item_t, item)
 
 
+@functools.cache
+def _type_hints(cls: type, extras: bool) -> dict[str, Any]:
+    """``typing.get_type_hints`` of a parameter class, resolved once (a resolution takes
+    about a millisecond, as much as a small solve)."""
+    return typing.get_type_hints(cls, include_extras=extras)
+
+
 def check_bounds(params: Any) -> None:
     """Check the fields of parameter dataclass ``params``: :class:`Bounds`, ``Literal`` choices.
 
@@ -243,7 +251,7 @@ def check_bounds(params: Any) -> None:
     ValueError
         Naming the first field outside its bounds, what it accepts and its value.
     """
-    hints = typing.get_type_hints(type(params), include_extras=True)
+    hints = _type_hints(type(params), True)  # type: ignore[arg-type]
     for f in dataclasses.fields(params):
         _check_value(f.name, hints[f.name], getattr(params, f.name))
 
@@ -269,7 +277,7 @@ def make_params(owner: str, cls: type, values: Optional[dict] = None):
     themselves further in ``__post_init__``.
     """
     values = dict(values or {})
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls, False)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     kwargs = {}
     for key, val in values.items():

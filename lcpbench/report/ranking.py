@@ -155,6 +155,15 @@ def app_cost_median(ok: pd.DataFrame) -> str:
     return f"{float(v.median()):.3g}" if len(v) else "-"
 
 
+def framework_median(g: pd.DataFrame) -> str:
+    """Median products the framework made per run beside the solver's (``framework_mvps``:
+    verification, probes, confirmations) as text; ``-`` for stores written before the column."""
+    if "framework_mvps" not in g.columns:
+        return "-"
+    v = pd.to_numeric(g["framework_mvps"], errors="coerce").dropna()
+    return f"{float(v.median()):.3g}" if len(v) else "-"
+
+
 def _both_solved_ratio(g: pd.DataFrame, base: pd.DataFrame) -> str:
     """``median(solver) / median(baseline)`` over the instances both solved, with the count."""
     mine, theirs = _by_instance(g), _by_instance(base)
@@ -175,7 +184,9 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
     MVPs in parentheses for multi-fidelity solvers); ``median / <baseline>`` over the
     instances both solved with the count; ``shifted GM`` (every run, failures at the
     penalty) and ``shifted GM / best``; ``median app. cost`` (the median
-    application-weighted cost of the solved runs, :func:`app_cost_median`). Rows: the baseline first, then single- and
+    application-weighted cost of the solved runs, :func:`app_cost_median`); ``median
+    framework products`` (the framework's own products per run, every run,
+    :func:`framework_median`). Rows: the baseline first, then single- and
     multi-fidelity solvers, each alphabetical.
     """
     if cut.empty:
@@ -191,6 +202,7 @@ def ranking_table(cut: pd.DataFrame, baseline: str, meta: dict | None = None) ->
                "success": f"{100.0 * ok_mask.mean():.0f} %"}
         row.update(emvp_stats(g[ok_mask], multi))
         row["median app. cost"] = app_cost_median(g[ok_mask])
+        row["median framework products"] = framework_median(g)
         row[f"median / {baseline}"] = (_both_solved_ratio(g, base) if len(base)
                                        else "- (baseline not run)")
         row["shifted GM"] = shifted_geomean(pd.to_numeric(g["emvps"], errors="coerce"),

@@ -567,7 +567,8 @@ def online_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.D
     Per scene (sorted by lattice side) and solver (the baseline first): the
     finished steps stored, summed total and collision-resolution seconds, median
     E-MVPs and high-fidelity MVPs per step, the median application-weighted cost
-    per step (``app_cost``; NaN for stores written before it), the largest overlap
+    per step (``app_cost``; NaN for stores written before it), the median framework
+    products per step (``framework_mvps``, the same), the largest overlap
     and the steps solved (verified). Simulations of one scene may have different step counts
     here; :func:`online_paper_table` compares them over their common steps.
     """
@@ -590,6 +591,9 @@ def online_table(results: pd.DataFrame, baseline: str = BASELINE_SOLVER) -> pd.D
                 "median_mvps": float(pd.to_numeric(g["mvps"], errors="coerce").median()),
                 "median_app_cost": (float(pd.to_numeric(g["app_cost"], errors="coerce").median())
                                     if "app_cost" in g else np.nan),
+                "median_framework_mvps": (
+                    float(pd.to_numeric(g["framework_mvps"], errors="coerce").median())
+                    if "framework_mvps" in g else np.nan),
                 "max_overlap": float(pd.to_numeric(g["max_overlap"], errors="coerce").max()),
                 "solved": int(_truthy(g["solved"]).sum())})
     return pd.DataFrame(rows)

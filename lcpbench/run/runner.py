@@ -159,7 +159,7 @@ def result_fields(res) -> dict:
         "iterations": res.iterations, "time_s": res.time_s, "mvp_time_s": res.mvp_time_s,
         "applications": res.applications,
         "lofi_applications_total": float(sum(res.lofi_applications.values())),
-        "app_cost": res.app_cost,
+        "app_cost": res.app_cost, "framework_mvps": res.framework_mvps,
     }
 
 

@@ -58,7 +58,8 @@ RESULT_COLUMNS = [
     "ref_err_w_others",
     "ref_solvers", "mvps", "lofi_mvps", "lofi_mvps_total", "emvps", "iterations", "time_s",
     "mvp_time_s", "info", "step", "sim_total_s", "max_overlap", "started", "finished",
-    "applications", "lofi_applications_total", "app_cost", "model_emvps", "row_crc",
+    "applications", "lofi_applications_total", "app_cost", "model_emvps", "framework_mvps",
+    "row_crc",
 ]
 #: How a row of a run whose worker process died starts its message (retried once on resume).
 DIED_PREFIX = "worker process died"
