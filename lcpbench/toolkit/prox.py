@@ -138,7 +138,7 @@ def compact_prox(y: np.ndarray, d, W: np.ndarray, P: np.ndarray, N: np.ndarray,
     and consecutive proxes of a solve mostly share it); it is kept when it
     reduces the residual, else the iteration starts from 0. The root is the
     same; on the shipped sets the Newton passes fell by 15-55%
-    (docs/benchmarks.md, "PQN work outside products, third round").
+    (docs/benchmarks.md, "The weighted prox's active-set predictor").
     BLAS threads are the caller's business (:mod:`lcpbench.toolkit.blas`).
 
     Parameters
