@@ -230,7 +230,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 def test_readme_commands_and_pointers():
     text = README.read_text()
-    assert 'python -m pytest -q -m "not browser and not slow"' in text
+    assert 'python -m pytest -q -n auto -m "not browser and not slow"' in text
     assert "../shared" not in text.split("## Layout")[0]
     assert not re.search(r"(/work/|/home/|/root/)", text)
 

@@ -48,11 +48,27 @@ def _spec(name: str) -> str:
     return {"bi-pqn": "bi-pqn:low=low", "multi-pqn": "multi-pqn:lows=[low,lower]"}.get(name, name)
 
 
-@settings(max_examples=60, deadline=None, derandomize=True,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+_SETTINGS = dict(deadline=None, derandomize=True,
+                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@settings(max_examples=20, **_SETTINGS)
 @given(lcp=lcps())
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_solvers_are_honest_on_random_lcps(solver, lcp):
+    _check_honest(solver, lcp)
+
+
+@pytest.mark.slow
+@settings(max_examples=150, **_SETTINGS)
+@given(lcp=lcps())
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_solvers_are_honest_on_many_random_lcps(solver, lcp):
+    """The same properties on a wider sample (a different stream of examples)."""
+    _check_honest(solver, lcp)
+
+
+def _check_honest(solver: str, lcp: LCP) -> None:
     res = lcpbench.solve(lcp, solver=_spec(solver), stop="kkt", tol=1e-9, max_emvps=3000)
     assert not res.false_convergence, (lcp.name, res.summary())
     assert res.status != Status.failed, (lcp.name, res.message)
