@@ -109,3 +109,28 @@ def test_calibration_prices_an_application_in_cold_high_products(tmp_path):
     other = CostModel("scene", machine={"cpu": "y"}, cache_dir=tmp_path)    # another machine
     other.observe(_Result(4, {"p4": 6.0}, {"high": 8.0, "p4": 30.0}, {"high": 2.0}), "later")
     assert other.entries["p4"]["per_application"] == pytest.approx(2.5)
+
+
+def test_calibration_leaves_out_each_operators_first_call():
+    # the low's first call paid 50 s of one-off work; after it, 2 s on 8 applications;
+    # the high's steady cold product is 0.5 s an application times 4 applications
+    res = _Result(4, {"p8f6e3": 9.0}, {"high": 12.0, "p8f6e3": 52.0}, {"high": 3.0})
+    res.info["operator_steady_seconds"] = {"high": 0.5, "p8f6e3": 0.25}
+    res.info["operator_cold_applications"] = {"high": 4.0}
+    assert calibrate(res) == {"p8f6e3": pytest.approx(0.25 / 2.0)}
+
+
+def test_an_operators_steady_seconds_exclude_its_first_call(monkeypatch):
+    import lcpbench
+    import lcpbench.core.operator as operator
+
+    clock = iter([0.0, 10.0, 10.0, 11.0, 11.0, 12.0])   # first call 10 s, then 1 s each
+    monkeypatch.setattr(operator.time, "perf_counter", lambda: next(clock))
+    op = lcpbench.Operator(np.eye(3))
+    assert op.steady_application_seconds is None
+    op @ np.ones(3)
+    assert op.steady_application_seconds is None         # one call: nothing steady yet
+    op @ np.ones(3)
+    op @ np.ones(3)
+    assert op.steady_application_seconds == pytest.approx(1.0)
+    assert op.seconds == pytest.approx(12.0)

@@ -381,7 +381,10 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params,
     used = {k: op for k, op in run.operators().items() if op.count}
     work = {"applications": run.work_counts(),       # and what the products cost, per operator
             "operator_seconds": {k: float(op.seconds) for k, op in used.items()},
-            "operator_cost": {k: op.cost for k, op in used.items()}}
+            "operator_cost": {k: op.cost for k, op in used.items()},
+            "operator_steady_seconds": {k: op.steady_application_seconds
+                                        for k, op in used.items()},
+            "operator_cold_applications": {k: op.cold_applications for k, op in used.items()}}
     claimed = kkt_abs(x, res.w) if np.all(np.isfinite(res.w)) else float("nan")
     if verify:
         verified, status, message = _verified(ctx, run, x, status, message)

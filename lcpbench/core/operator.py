@@ -211,6 +211,9 @@ class Operator(LinearOperator):
         self.count = 0
         self.seconds = 0.0
         self.calls = 0
+        #: Seconds and inner applications after the first call (which may pay one-off work:
+        #: compiling kernels, building tables), for :attr:`steady_application_seconds`.
+        self._after_first: Optional[tuple[float, float]] = None
         #: Counted products made to a looser accuracy (:meth:`product_within`).
         self.loose = 0
         self._loose_now = False
@@ -324,6 +327,8 @@ class Operator(LinearOperator):
         self._charge(before, k)
         self.count += k
         self.calls += 1
+        if self.calls == 1:
+            self._after_first = (self.seconds, self.applications)
         if not all_finite(Y) and all_finite(X):
             self.nonfinite_at = self.nonfinite_at or self.count
             raise NonFiniteProduct(f"operator returned non-finite values at product "
@@ -445,6 +450,20 @@ class Operator(LinearOperator):
         if self._work is None:
             return 1.0
         return self._first_apps
+
+    @property
+    def steady_application_seconds(self) -> Optional[float]:
+        """Seconds per inner application over the calls after the first, or None.
+
+        The first call of an operator may pay one-off work (the first compilation of its
+        kernels, a table built on first use), so a price taken from it alone can be many
+        times the steady one. None before a second call that made applications.
+        """
+        if self._after_first is None or self.calls < 2:
+            return None
+        s0, a0 = self._after_first
+        apps = self.applications - a0
+        return (self.seconds - s0) / apps if apps > 0 else None
 
     def application_cost(self) -> Optional[float]:
         """Seconds per inner application: :attr:`cost` / :attr:`cold_applications`.

@@ -13,6 +13,8 @@
   step, steps without contacts or without products) listed apart;
 * the offline comparison per stored set beside the paper's offline table
   (:mod:`.paper_offline`);
+* the held-apart choice of the configurations lcpbench's best regime runs
+  (:mod:`.paper_select`), from the store named ``select``;
 * one section, "What differs", that states the measured differences with numbers from
   the same rows.
 
@@ -32,7 +34,7 @@ import pandas as pd
 
 from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_OFFLINE_HEADLINE, PAPER_ONLINE_FAMILIES
 from lcpbench.core.ranges import format_ranges
-from lcpbench.report import paper_offline, paper_online, tables
+from lcpbench.report import paper_offline, paper_online, paper_select, tables
 from lcpbench.report.markup import markdown_table as md_table
 from lcpbench.run.store import RunStore
 
@@ -337,8 +339,11 @@ def render_page(folder: Path, baseline: str = BASELINE_SOLVER) -> str:
              "## The run stores", ""]
     for name, res, meta, regime in loaded:
         lines += _store_header(name, res, meta, regime)
+    for name, res, _meta, _regime_name in loaded:
+        if name == paper_select.SELECT_STORE:
+            lines += [""] + paper_select.selection_section(name, res)
     lines += ["", "## Online comparison", ""]
-    online = [t for t in loaded if t[3] != "offline"]
+    online = [t for t in loaded if t[3] != "offline" and t[0] != paper_select.SELECT_STORE]
     if not online:
         lines += ["No online store yet.", ""]
     for name, res, _meta, regime in online:

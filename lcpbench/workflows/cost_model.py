@@ -11,8 +11,8 @@ products:
 
 ``c_low = (seconds per inner application of the low) / (seconds of one cold high product)``
 is calibrated once: on the first step in which the low and the high both made counted
-products, from that step's own products (their seconds and applications, and the high's
-measured cost :attr:`lcpbench.Operator.measured_cost`), and
+products, from that step's own products after each operator's first call (their seconds and
+applications; :attr:`lcpbench.Operator.steady_application_seconds`), and
 never again in the run (a resumed run takes it from ``meta.json``). The calibration is
 kept in the user cache directory, keyed by the scene, the low, the lcpbench version and
 the machine (processor, cores, thread settings), so a second identical run on the same
@@ -38,32 +38,54 @@ __all__ = ["CostModel", "calibrate", "cache_key", "COST_CACHE"]
 #: Sub-folder of the user cache directory holding the calibrations.
 COST_CACHE = "cost-model"
 
+#: How a calibration is taken (part of its cache key, so that a calibration taken the
+#: earlier way, from every call including the first, is never reused).
+METHOD = 2
+
 
 def cache_key(scene_spec: str, low: str, machine: Mapping[str, Any]) -> str:
     """The cache key of one low's calibration: scene, low, lcpbench version, machine."""
     from lcpbench import __version__
 
-    what = {"scene": scene_spec, "low": low, "lcpbench": __version__,
+    what = {"scene": scene_spec, "low": low, "lcpbench": __version__, "method": METHOD,
             "cpu": machine.get("cpu"), "cpu_count": machine.get("cpu_count"),
             "threads": machine.get("threads")}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
+def _positive(v: Any) -> bool:
+    return isinstance(v, (int, float)) and bool(np.isfinite(v)) and v > 0
+
+
 def calibrate(result) -> dict[str, float]:
     """Cost per inner application of each low that made counted products in the solve
-    ``result``, in high products: ``(seconds / applications of the low) / (cost of one
-    cold high product)``, from the solve's ``info`` (``operator_seconds``,
-    ``operator_cost``). Empty when the high made no counted product (no unit to price in)."""
+    ``result``, in high products: ``(seconds per application of the low) / (seconds of one
+    cold high product)``, from the solve's ``info``.
+
+    Each operator's seconds per application are taken over its calls after the first
+    (``operator_steady_seconds``): the first call of a step's operator can pay the first
+    compilation of its kernels or a table built on first use, which priced a split low at
+    fifty times its steady cost. An operator with a single call is priced by all its
+    seconds (``operator_seconds``; the high by ``operator_cost``, its measured cold cost).
+    Empty when the high made no counted product (no unit to price in).
+    """
     info = result.info or {}
     seconds, cost = info.get("operator_seconds") or {}, info.get("operator_cost") or {}
+    steady = info.get("operator_steady_seconds") or {}
+    cold = info.get("operator_cold_applications") or {}
     high = cost.get("high")
-    if not isinstance(high, (int, float)) or not np.isfinite(high) or high <= 0:
+    if _positive(steady.get("high")) and _positive(cold.get("high")):
+        high = steady["high"] * cold["high"]
+    if not _positive(high):
         return {}
     out = {}
     for name, apps in dict(result.lofi_applications or {}).items():
-        s = seconds.get(name)
-        if apps and apps > 0 and isinstance(s, (int, float)) and s > 0:
-            out[str(name)] = float(s / apps / high)
+        per = steady.get(name)
+        if not _positive(per):
+            s = seconds.get(name)
+            per = s / apps if apps and apps > 0 and _positive(s) else None
+        if per is not None:
+            out[str(name)] = float(per / high)
     return out
 
 
