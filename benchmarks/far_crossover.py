@@ -23,7 +23,7 @@ sums also relax the later ones, so the application ratio is the FMM's best case)
 into ``problems/suspension/bim/fmm.py: FAR_CROSSOVER_M`` with this command.  When no
 measured ``M`` has it, the script prints where the last ratio extrapolates to 1 if the
 ratio grows like ``M`` (all-pairs direct sums ~ ``M^2``, the FMM ~ ``M``); on packed lattices
-up to 216 spheres it did not (docs/benchmarks.md, "Live step hygiene").
+up to 125 spheres it did not (docs/benchmarks.md, "The far field's crossover").
 """
 
 from __future__ import annotations

@@ -27,7 +27,11 @@ __all__ = ["check_fmm", "fmm_traction", "fmm_traction_adjoint", "fmm_available",
 FAR_ENGINES = ("auto", "direct", "fmm")
 """The far-field engines a boundary-integral mobility accepts."""
 
-FAR_CROSSOVER_M = 1000
+FAR_CROSSOVER_M = 40000
+"""From how many spheres ``far="auto"`` takes the FMM: no crossover was measured up to 125
+spheres (the FMM 300x slower than the direct sums per application with the pair-frame near
+field, docs/benchmarks.md, "The far field's crossover"); the ratio extrapolated as growing
+like M reaches 1 near 42,000 spheres, beyond this machine's memory for the pair plan."""
 """Spheres from which ``far="auto"`` takes the FMM.  Measured by ``python
 benchmarks/far_crossover.py --m 2 3 4 5 6`` (p = 8, packed lattices; docs/benchmarks.md,
 "Live step hygiene"): the FMM's traction-operator product took 83, 22, 17, 4.0 and 4.1
