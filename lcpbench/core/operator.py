@@ -208,12 +208,7 @@ class Operator(LinearOperator):
         self.name = name
         self._init_work(work, cold_applications)
         self._last: Optional[tuple[np.ndarray, np.ndarray]] = None
-        self.count = 0
-        self.seconds = 0.0
-        self.calls = 0
-        #: Seconds and inner applications after the first call (which may pay one-off work:
-        #: compiling kernels, building tables), for :attr:`steady_application_seconds`.
-        self._after_first: Optional[tuple[float, float]] = None
+        self._init_counts()
         #: Counted products made to a looser accuracy (:meth:`product_within`).
         self.loose = 0
         self._loose_now = False
@@ -226,6 +221,14 @@ class Operator(LinearOperator):
         #: The largest machine epsilon of a product's output dtype narrower than float64
         #: (float32: 1.2e-7), 0 while every product came back in float64.
         self.output_eps = 0.0
+
+    def _init_counts(self) -> None:
+        self.count = 0
+        self.seconds = 0.0
+        self.calls = 0
+        #: Seconds and inner applications after the first call (which may pay one-off work:
+        #: compiling kernels, building tables), for :attr:`steady_application_seconds`.
+        self._after_first: Optional[tuple[float, float]] = None
 
     def _init_work(self, work: Optional[Callable[[], WorkCounts]],
                    cold: Optional[float]) -> None:

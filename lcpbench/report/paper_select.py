@@ -17,6 +17,7 @@ import re
 
 import pandas as pd
 
+from lcpbench.core.defaults import BASELINE_SOLVER, PAPER_ONLINE_FAMILIES
 from lcpbench.report import tables
 from lcpbench.report.markup import markdown_table as md_table
 
@@ -25,7 +26,7 @@ __all__ = ["SELECT_STORE", "FAMILIES", "choose", "selection_section"]
 SELECT_STORE = "select"
 """The folder name of the held-apart selection's run store under ``reports/paper``."""
 
-FAMILIES = ("bb-pgd", "mono-pqn", "bi-pqn")
+FAMILIES = (BASELINE_SOLVER, *PAPER_ONLINE_FAMILIES.values())
 """The solver families the best regime runs, one configuration each."""
 
 
@@ -101,7 +102,7 @@ def selection_section(name: str, res: pd.DataFrame) -> list[str]:
     lines += [md_table(shown), ""]
     if chosen:
         picked = " ".join(chosen[f] for f in FAMILIES if f in chosen)
-        low = re.search(r"(?:^|[:,])low=([^,]+)", chosen.get("bi-pqn", ""))
+        low = re.search(r"(?:^|[:,])low=([^,]+)", chosen.get(FAMILIES[-1], ""))
         lows = f"LOW={low.group(1)} " if low else ""
         lines += ["The best regime's campaign runs them: "
                   f"`REGIME=default {lows}SOLVERS=\"{picked}\" bash sweeps/online-paper.sh "
