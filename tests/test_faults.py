@@ -125,6 +125,7 @@ def test_timeouts_hold_on_local_and_process(tmp_path, monkeypatch, executor):
     assert bool(res.loc["bb-pgd", "solved"])
 
 
+@pytest.mark.slow       # starts a local dask cluster, about 18 s
 def test_dask_local_cluster_faults_timeouts_and_same_rows(tmp_path, monkeypatch):
     monkeypatch.setenv("LCPBENCH_PLUGINS", PLUGIN)
     faulty = Sweep(solvers=["test-misbehave:mode=[sleep,raise,die,kill,segv]", "bb-pgd"],

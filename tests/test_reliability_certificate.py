@@ -32,7 +32,9 @@ def test_two_by_two_definite_is_never_infeasible():
         "not zero to the rounding" in res.info["infeasibility_rejected"]
 
 
-@pytest.mark.parametrize("seed", range(6))
+# two seeds by default; the other four (about 4 s each) in the slow run
+@pytest.mark.parametrize("seed", [0, 1] + [pytest.param(k, marks=pytest.mark.slow)
+                                           for k in range(2, 6)])
 def test_ill_conditioned_definite_with_positive_small_eigenvector(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(2, 10))

@@ -132,6 +132,7 @@ def test_report_sections_labels_and_progress(small_store):
         assert width <= 9 * 72 + 1
 
 
+@pytest.mark.slow       # three full report renders, about 30 s
 def test_fidelity_study_is_cached_once_per_set_in_the_user_cache(small_store, tmp_path,
                                                                  monkeypatch):
     import shutil

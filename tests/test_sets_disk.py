@@ -47,7 +47,8 @@ def one_shot(tmp_path_factory) -> Path:
     return path
 
 
-@pytest.mark.parametrize("cap", [60_000, 170_000])
+# a second disk size (the set cut at another instance) repeats the check: slow
+@pytest.mark.parametrize("cap", [60_000, pytest.param(170_000, marks=pytest.mark.slow)])
 def test_full_disk_during_generate_keeps_the_set_and_the_same_command_resumes(
         tmp_path, one_shot, cap):
     out = tmp_path / "full.h5"
