@@ -1,13 +1,14 @@
 """The compiled inner loops of the dense classics: one projected Gauss-Seidel sweep and
-a run of Lemke pivots.
+a whole Lemke solve (pivots, refactorisations of the basis inverse, the final solve).
 
 Both are numba kernels (numba is already a dependency of the boundary-integral backend)
-doing the same arithmetic, in the same order, as the loops they replace: the dot
-products and the matrix-vector products of the pivot column go through the same BLAS
-calls numpy makes, and the pivot update is the same element-wise ``a - d_i b_j``. What
-they save is Python's cost per row (PGS) and per pivot (Lemke), which made lcpbench's
+doing the arithmetic of the loops they replace: the dot products, the pivot column
+``B^-1 col`` and the final LU solve go through the same BLAS and LAPACK calls numpy
+makes, and the pivot update is the same element-wise ``a - d_i b_j``; only the rounding
+scale of the ratio test is summed in any order (``fastmath``). What they save is
+Python's cost per row (PGS), per pivot and per solve (Lemke), which made lcpbench's
 Lemke about 90 times slower than quantecon's compiled ``lcp_lemke`` on the shipped sets
-(docs/benchmarks.md, "The framework's cost around a solve").
+(docs/benchmarks.md, "The framework's cost around a solve, and Lemke").
 """
 
 from __future__ import annotations
