@@ -43,10 +43,9 @@ from lcpbench.core.result import SolveResult, Status
 from lcpbench.core.specs import Bounds, CheckedParams
 from lcpbench.toolkit.blas import on_one_blas_thread
 
-from .dense_kernels import PIVOT_LIMIT, RAY, REFACTOR_DUE, ZERO_PIVOT, lemke_run, pgs_sweep
+from .dense_kernels import PIVOT_LIMIT, RAY, ZERO_PIVOT, basis_matrix, lemke_solve, pgs_sweep
 
 __all__ = ["PGSParams", "LemkeParams", "pgs", "lemke"]
-
 
 @dataclass(frozen=True)
 class PGSParams(CheckedParams):
@@ -165,103 +164,32 @@ def _offer_ray(ctx: SolverContext, basis: np.ndarray, d: np.ndarray, entering: i
         ctx.offer_direction(dz, _matrix(ctx) @ dz)
 
 
-class _Tableau:
-    """Lemke's tableau ``w - M z - e z0 = q`` on scaled data, with its basis and basis inverse.
-
-    Columns: ``0..n-1`` are ``w_i`` (``e_i``), ``n..2n-1`` are ``z_j`` (``-M[:, j]``),
-    ``2n`` is ``z0`` (``-e``). The start has every ``w`` basic.
-    """
-
-    def __init__(self, M: np.ndarray, q: np.ndarray) -> None:
-        self.M = np.ascontiguousarray(M, dtype=np.float64)
-        self.q, self.n = q, q.shape[0]
-        self.basis = np.arange(self.n, dtype=np.int64)
-        self.Binv = np.eye(self.n)
-        self.rhs = q.astype(np.float64).copy()
-
-    def column(self, k: int) -> np.ndarray:
-        n = self.n
-        if k < n:
-            e = np.zeros(n)
-            e[k] = 1.0
-            return e
-        if k < 2 * n:
-            return -self.M[:, k - n]
-        return -np.ones(n)
-
-    def basis_matrix(self) -> np.ndarray:
-        return np.column_stack([self.column(int(k)) for k in self.basis])
-
-    def pivot(self, row: int, entering: int, d: np.ndarray) -> int:
-        """One elementary pivot on ``(row, entering)``, ``d = Binv col``; returns the leaving column."""
-        piv = d[row]
-        self.Binv[row] /= piv
-        self.rhs[row] /= piv
-        other = np.arange(self.n) != row
-        self.Binv[other] -= np.outer(d[other], self.Binv[row])
-        self.rhs[other] -= d[other] * self.rhs[row]
-        leaving = int(self.basis[row])
-        self.basis[row] = entering
-        return leaving
-
-    def refactor(self, ctx: SolverContext) -> None:
-        """Recompute the basis inverse, or keep the product form if the basis is singular."""
-        try:
-            self.Binv = np.linalg.inv(self.basis_matrix())
-            self.rhs = np.maximum(self.Binv @ self.q, 0.0)   # basic variables are >= 0
-        except np.linalg.LinAlgError:
-            # a numerically singular basis: keep the product-form inverse (it carries on
-            # exactly where the refactorisation would have been) and record it
-            ctx.info["singular_refactors"] = ctx.info.get("singular_refactors", 0) + 1
-
-    def solution(self, ctx: SolverContext) -> np.ndarray:
-        """``x`` from the final basis by a direct solve (accurate, no drift)."""
-        Bmat = self.basis_matrix()
-        try:
-            sol = np.linalg.solve(Bmat, self.q)
-        except np.linalg.LinAlgError:
-            ctx.info["final_basis"] = "singular: least-squares solve"
-            sol = np.linalg.lstsq(Bmat, self.q, rcond=None)[0]
-        if not np.all(np.isfinite(sol)):
-            sol = self.rhs
-        n = self.n
-        x = np.zeros(n)
-        for k, v in zip(self.basis, sol):
-            if n <= k < 2 * n:
-                x[k - n] = max(float(v), 0.0)
+def _least_squares_solution(M: np.ndarray, q: np.ndarray, basis: np.ndarray,
+                            ctx: SolverContext, x: np.ndarray) -> np.ndarray:
+    """``x`` from a numerically singular final basis by a least-squares solve (``x``, the
+    compiled run's answer from its updated right-hand side, when that is not finite)."""
+    ctx.info["final_basis"] = "singular: least-squares solve"
+    sol = np.linalg.lstsq(basis_matrix(M, basis), q, rcond=None)[0]
+    n = q.shape[0]
+    if not np.all(np.isfinite(sol)):
         return x
+    x = np.zeros(n)
+    z = (basis >= n) & (basis < 2 * n)       # the basic z variables
+    x[basis[z] - n] = np.maximum(sol[z], 0.0)
+    return x
 
 
-def _lemke_pivots(ctx: SolverContext, p: LemkeParams, tab: _Tableau):
-    """Scheme I's pivots until ``z0`` leaves; ``(status or None, message, pivots)``.
-
-    The pivots run compiled (:func:`lcpbench.solvers.dense_kernels.lemke_run`), handing back
-    every ``refactor_every`` pivots for the basis inverse to be recomputed here.
-    """
-    n = tab.n
-    max_piv = p.max_pivots or max(100, 50 * n)
-    # z0 enters; the most negative q_i leaves (lexicographic ties resolved by index).
-    first_row = int(np.argmin(tab.q))
-    entering, pivots = 2 * n, 0
-    d = np.zeros(n)
-    refactor_every = p.refactor_every or max(20, n)
-    while True:
-        code, entering, pivots = lemke_run(tab.M, tab.basis, tab.Binv, tab.rhs, d, entering,
-                                           pivots, first_row, max_piv, refactor_every,
-                                           p.pivot_tol)
-        if code == REFACTOR_DUE:
-            tab.refactor(ctx)
-            continue
-        if code == RAY:
-            _offer_ray(ctx, tab.basis, d, entering)    # the framework confirms the claim
-            return Status.infeasible, (
-                f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
-                "the LCP is infeasible)"), pivots
-        if code == ZERO_PIVOT:
-            return Status.failed, "Lemke: zero pivot", pivots
-        if code == PIVOT_LIMIT:
-            return Status.max_iter, f"Lemke: pivot limit {max_piv} reached", pivots
-        return None, "", pivots             # z0 left: complementary basis found
+def _lemke_outcome(code: int, pivots: int, max_piv: int) -> tuple[Status | None, str]:
+    """The status and message of how the pivots ended (None: a complementary basis)."""
+    if code == RAY:
+        return Status.infeasible, (
+            f"Lemke: ray termination after {pivots} pivots (no solution for PSD A: "
+            "the LCP is infeasible)")
+    if code == ZERO_PIVOT:
+        return Status.failed, "Lemke: zero pivot"
+    if code == PIVOT_LIMIT:
+        return Status.max_iter, f"Lemke: pivot limit {max_piv} reached"
+    return None, ""             # z0 left: complementary basis found
 
 
 @register_solver("lemke", LemkeParams, needs_dense=True)
@@ -281,8 +209,9 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     the framework must confirm (rounding in the pivots can end on a ray of a solvable
     problem; the claim is then returned as ``stagnated``). At termination the solution
     is recomputed by a direct solve with the final basis (removing the drift of
-    the updated inverse), then ``w = A x + b`` costs one counted MVP.
-    ``info``: ``pivots``.
+    the updated inverse; least squares when that basis is singular), then ``w = A x + b`` costs one counted MVP. The pivots and the final
+    solution run as one compiled call (:func:`lcpbench.solvers.dense_kernels.lemke_solve`),
+    so the Python work per solve is a few calls. ``info``: ``pivots``.
     """
     M = _matrix(ctx)
     b = ctx.b
@@ -297,10 +226,20 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     # columns (identity, -A/s, -e) are all of order 1, so one pivot tolerance fits.
     s = float(np.max(np.abs(M)))
     s = s if s > 0 else 1.0
-    tab = _Tableau(M / s, b / s)
-    status, message, pivots = _lemke_pivots(ctx, p, tab)
+    Ms = np.ascontiguousarray(M / s, dtype=np.float64)
+    q = np.asarray(b / s, dtype=np.float64)
+    max_piv = p.max_pivots or max(100, 50 * n)
+    # the whole pivoting run and the final basic solution in one compiled call
+    code, pivots, entering, basis, d, x, solved, singular = lemke_solve(
+        Ms, q, max_piv, p.refactor_every or max(20, n), p.pivot_tol)
+    if singular:
+        ctx.info["singular_refactors"] = singular
     ctx.info["pivots"] = pivots
-    x = tab.solution(ctx)
+    status, message = _lemke_outcome(code, pivots, max_piv)
+    if code == RAY:
+        _offer_ray(ctx, basis, d, entering)    # the framework confirms the claim
+    if not solved:
+        x = _least_squares_solution(Ms, q, basis, ctx, x)
     w = ctx.A @ x + b
     if ctx.report(x, w) and status is None:
         return ctx.finish(x, w)

@@ -1,13 +1,14 @@
 """The compiled inner loops of the dense classics: one projected Gauss-Seidel sweep and
-a run of Lemke pivots.
+a whole Lemke solve (pivots, refactorisations of the basis inverse, the final solve).
 
 Both are numba kernels (numba is already a dependency of the boundary-integral backend)
-doing the same arithmetic, in the same order, as the loops they replace: the dot
-products and the matrix-vector products of the pivot column go through the same BLAS
-calls numpy makes, and the pivot update is the same element-wise ``a - d_i b_j``. What
-they save is Python's cost per row (PGS) and per pivot (Lemke), which made lcpbench's
+doing the arithmetic of the loops they replace: the dot products, the pivot column
+``B^-1 col`` and the final LU solve go through the same BLAS and LAPACK calls numpy
+makes, and the pivot update is the same element-wise ``a - d_i b_j``; only the rounding
+scale of the ratio test is summed in any order (``fastmath``). What they save is
+Python's cost per row (PGS), per pivot and per solve (Lemke), which made lcpbench's
 Lemke about 90 times slower than quantecon's compiled ``lcp_lemke`` on the shipped sets
-(docs/benchmarks.md, "The framework's cost around a solve").
+(docs/benchmarks.md, "The framework's cost around a solve, and Lemke").
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["pgs_sweep", "lemke_run", "Z0_LEFT", "RAY", "ZERO_PIVOT", "PIVOT_LIMIT",
-           "REFACTOR_DUE"]
+__all__ = ["pgs_sweep", "lemke_run", "lemke_solve", "basis_matrix",
+           "Z0_LEFT", "RAY", "ZERO_PIVOT", "PIVOT_LIMIT", "REFACTOR_DUE"]
 
 #: What :func:`lemke_run` stopped on.
 Z0_LEFT, RAY, ZERO_PIVOT, PIVOT_LIMIT, REFACTOR_DUE = 0, 1, 2, 3, 4
@@ -32,37 +33,67 @@ def pgs_sweep(M: np.ndarray, b: np.ndarray, x: np.ndarray, rows: np.ndarray,
         x[i] = xi if xi > 0.0 else 0.0
 
 
-@njit(cache=True)
-def _column(M: np.ndarray, k: int, col: np.ndarray) -> None:
-    """Column ``k`` of the tableau ``[I, -M, -e]`` into ``col``."""
+@njit(cache=True, fastmath=True)
+def _pivot_column(M: np.ndarray, Binv: np.ndarray, k: int, col: np.ndarray,
+                  d: np.ndarray) -> float:
+    """``d = B^-1 col`` for column ``k`` of the tableau ``[I, -M, -e]``; returns its
+    rounding scale ``max_i sum_j |B^-1_ij| |col_j|``.
+
+    One pass over ``B^-1`` makes both (summed in any order, ``fastmath``, so that the
+    sums vectorise: a sum's rounding is that of any BLAS). A column of the identity
+    selects a column of ``B^-1`` and ``-e`` sums its rows.
+    """
     n = M.shape[0]
+    scale = 0.0
     if k < n:
         col[:] = 0.0
         col[k] = 1.0
-    elif k < 2 * n:
+        for i in range(n):
+            d[i] = Binv[i, k]
+            scale = max(scale, abs(d[i]))
+        return scale
+    if k < 2 * n:
         for i in range(n):
             col[i] = -M[i, k - n]
     else:
         col[:] = -1.0
+    for i in range(n):
+        a = 0.0
+        for j in range(n):
+            a += abs(Binv[i, j]) * abs(col[j])
+        scale = max(scale, a)
+    d[:] = np.dot(Binv, col)
+    return scale
 
 
 @njit(cache=True)
-def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, col: np.ndarray,
+def basis_matrix(M: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """The basis columns of the tableau ``[I, -M, -e]`` as a matrix."""
+    n = M.shape[0]
+    B = np.zeros((n, n))
+    for c in range(n):
+        k = basis[c]
+        if k < n:
+            B[k, c] = 1.0
+        elif k < 2 * n:
+            for i in range(n):
+                B[i, c] = -M[i, k - n]
+        else:
+            for i in range(n):
+                B[i, c] = -1.0
+    return B
+
+
+@njit(cache=True)
+def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, scale: float,
                    tol: float) -> int:
     """The row of the lexicographic minimum ratio test, or -1 (a ray).
 
-    ``d_i`` counts as positive only above ``tol max_k (|B^-1| |col|)_k`` (see
-    :class:`lcpbench.solvers.dense.LemkeParams`); ties within ``1e-12`` are broken on the rows
-    of ``B^-1`` divided by the pivot entries.
+    ``d_i`` counts as positive only above ``tol`` times ``scale``, the rounding scale
+    ``max_k (|B^-1| |col|)_k`` of ``d`` (see :class:`lcpbench.solvers.dense.LemkeParams`);
+    ties within ``1e-12`` are broken on the rows of ``B^-1`` divided by the pivot entries.
     """
     n = d.shape[0]
-    scale = 0.0
-    for i in range(n):
-        s = 0.0
-        for j in range(n):
-            s += abs(Binv[i, j]) * abs(col[j])
-        if s > scale:
-            scale = s
     cand = np.flatnonzero(d > tol * scale)
     if cand.size == 0:
         return -1
@@ -93,13 +124,13 @@ def lemke_run(M: np.ndarray, basis: np.ndarray, Binv: np.ndarray, rhs: np.ndarra
     """
     n = M.shape[0]
     col = np.empty(n)
+    prow = np.empty(n)
     while True:
-        _column(M, entering, col)
-        d[:] = np.dot(Binv, col)
+        scale = _pivot_column(M, Binv, entering, col, d)
         if pivots == 0:
             row = first_row
         else:
-            row = _lex_min_ratio(rhs, Binv, d, col, pivot_tol)
+            row = _lex_min_ratio(rhs, Binv, d, scale, pivot_tol)
             if row < 0:
                 return RAY, entering, pivots
         piv = d[row]
@@ -107,13 +138,15 @@ def lemke_run(M: np.ndarray, basis: np.ndarray, Binv: np.ndarray, rhs: np.ndarra
             return ZERO_PIVOT, entering, pivots
         for j in range(n):
             Binv[row, j] /= piv
+            prow[j] = Binv[row, j]      # a row apart: the update below vectorises
         rhs[row] /= piv
+        r = rhs[row]
         for i in range(n):
-            if i != row:
-                di = d[i]
+            di = d[i]
+            if i != row and di != 0.0:
                 for j in range(n):
-                    Binv[i, j] -= di * Binv[row, j]
-                rhs[i] -= di * rhs[row]
+                    Binv[i, j] -= di * prow[j]
+                rhs[i] -= di * r
         leaving = int(basis[row])
         basis[row] = entering
         pivots += 1
@@ -128,3 +161,66 @@ def lemke_run(M: np.ndarray, basis: np.ndarray, Binv: np.ndarray, rhs: np.ndarra
         entering = leaving + n if leaving < n else leaving - n
         if pivots % refactor_every == 0:
             return REFACTOR_DUE, entering, pivots
+
+
+@njit(cache=True)
+def _refactor(M: np.ndarray, q: np.ndarray, basis: np.ndarray, Binv: np.ndarray,
+              rhs: np.ndarray) -> bool:
+    """Recompute ``Binv`` from the basis columns and ``rhs = max(B^-1 q, 0)`` in place.
+
+    Returns False, leaving both as they were (the product form carries on), when the
+    basis is numerically singular.
+    """
+    try:
+        fresh = np.linalg.inv(basis_matrix(M, basis))
+    except Exception:  # noqa: BLE001 - numba raises a plain LinAlgError it cannot name
+        return False
+    Binv[:, :] = fresh
+    rhs[:] = np.maximum(np.dot(fresh, q), 0.0)      # basic variables are >= 0
+    return True
+
+
+@njit(cache=True)
+def lemke_solve(M: np.ndarray, q: np.ndarray, max_pivots: int, refactor_every: int,
+                pivot_tol: float
+                ) -> tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray, bool, int]:
+    """A whole Lemke solve on ``w - M z - e z0 = q`` in one call (``M``, ``q`` already scaled).
+
+    Scheme I from the basis of every ``w``: ``z0`` enters, the most negative ``q_i``
+    leaves, then :func:`lemke_run`'s pivots, with the basis inverse recomputed from
+    the basis columns every ``refactor_every`` pivots (:func:`_refactor`), and at the
+    end the basic solution by a direct solve with the final basis columns (LAPACK's LU,
+    as numpy's ``solve``: no drift of the updated inverse; about ``n^3 / 3`` flops, a
+    few pivots' worth). Returns ``(code, pivots, entering, basis, d, x, solved,
+    singular_refactors)``: ``x`` is the ``z`` part of the basic solution clipped at 0
+    (from the updated right-hand side when the solve gives non-finite values or, with
+    ``solved`` False, when the final basis is singular: the caller then tries least
+    squares), ``d`` the last pivot column (the ray's on :data:`RAY`).
+    """
+    n = M.shape[0]
+    basis = np.arange(n)
+    Binv = np.eye(n)
+    rhs = q.copy()
+    d = np.zeros(n)
+    first_row = int(np.argmin(q))
+    entering, pivots, singular = 2 * n, 0, 0
+    while True:
+        code, entering, pivots = lemke_run(M, basis, Binv, rhs, d, entering, pivots,
+                                           first_row, max_pivots, refactor_every, pivot_tol)
+        if code != REFACTOR_DUE:
+            break
+        if not _refactor(M, q, basis, Binv, rhs):
+            singular += 1
+    solved = True
+    try:
+        xb = np.linalg.solve(basis_matrix(M, basis), q)
+    except Exception:  # noqa: BLE001 - numba raises a plain LinAlgError it cannot name
+        solved, xb = False, rhs
+    if not np.all(np.isfinite(xb)):
+        xb = rhs                      # the updated right-hand side, drift and all
+    x = np.zeros(n)
+    for c in range(n):
+        k = basis[c]
+        if n <= k < 2 * n:
+            x[k - n] = xb[c] if xb[c] > 0.0 else 0.0
+    return code, pivots, entering, basis, d, x, solved, singular

@@ -30,4 +30,5 @@ def test_readme_time_stepper_snippet_runs_for_several_steps():
         env["x_prev"] = env["x"]
         assert env["res"].status.value == "converged"
         assert env["res"].lofi_mvps["coarse"] > 0
+        assert env["res"].framework_mvps >= 1     # the verification's product, at least
     assert env["state"] is not None

@@ -103,8 +103,29 @@ def dense_family(count: int, n: int, *, matrices: int = 1, temporaries: int = 4,
     return Estimate(int(count), int(n), held + temporaries * square, count * flops_each)
 
 
+#: Seconds a reading of the available memory is reused: a reading costs about 0.1 ms
+#: (``/proc/meminfo``), which a small solve (n = 100 in a few milliseconds) paid twice per
+#: call; memory that frees or fills within this interval is seen at the next reading.
+MEMORY_READING_SECONDS = 0.5
+
+_memory_reading: list[float] = []            # [time of the reading, bytes available]
+
+
 def available_memory() -> float:
-    """Bytes of memory available now (psutil if installed, else /proc/meminfo or sysconf)."""
+    """Bytes of memory available now (psutil if installed, else /proc/meminfo or sysconf).
+
+    A reading is reused for :data:`MEMORY_READING_SECONDS`.
+    """
+    now = time.monotonic()
+    if _memory_reading and now - _memory_reading[0] < MEMORY_READING_SECONDS:
+        return _memory_reading[1]
+    avail = _read_available_memory()
+    _memory_reading[:] = [now, avail]
+    return avail
+
+
+def _read_available_memory() -> float:
+    """One reading of the available memory, in bytes (inf when it cannot be read)."""
     try:
         import psutil
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, nullcontext
 from functools import cache
 
 from threadpoolctl import ThreadpoolController
@@ -26,8 +26,22 @@ def _threadpools() -> ThreadpoolController:
     return ThreadpoolController()
 
 
+@cache
+def _blas_pools() -> ThreadpoolController:
+    """The BLAS libraries among the loaded thread pools, selected once."""
+    return _threadpools().select(user_api="blas")
+
+
 def one_blas_thread() -> AbstractContextManager:
-    """A context in which BLAS runs on one thread (the previous limits come back on exit)."""
+    """A context in which BLAS runs on one thread (the previous limits come back on exit).
+
+    When every BLAS library already runs on one thread (``OPENBLAS_NUM_THREADS=1``, or
+    inside another such context) nothing is entered: reading the thread counts costs
+    microseconds, entering and leaving a limit tens of them, which a small compiled solve
+    (lcpbench's Lemke at n = 50) would otherwise pay several times over.
+    """
+    if all(lib.num_threads == 1 for lib in _blas_pools().lib_controllers):
+        return nullcontext()
     return _threadpools().limit(limits=1, user_api="blas")
 
 
