@@ -108,6 +108,9 @@ def test_the_history_table_is_built_when_read():
     assert len(h) == res.iterations + 1 and res.__dict__["_history"] is h
     # the verified column, filled by one block product after the solve, is A x + b's
     assert h["kkt_abs_verified"].notna().all()
+    # one uncounted column per iterate, tallied apart from the products the answer needs
+    assert res.info["history_mvps"] == len(h)
+    assert res.framework_mvps <= 1
     np.testing.assert_allclose(h["kkt_abs_verified"].iloc[-1], res.verified_kkt_abs,
                                rtol=1e-6, atol=1e-14)     # a block product rounds apart
     big = lcpbench.solve(*planted(600, seed=0), solver="bb-pgd", max_iter=5)

@@ -392,6 +392,7 @@ def _complete(res: SolveResult, run: LCP, ctx: SolverContext, info, params,
         verified = {"kkt_abs": float("nan")}
         ctx.info["unverified"] = True
     framework = int(sum(op.framework_products for op in run.operators().values()))
+    ctx.info["history_mvps"] = int(run.A.history_products)
     return SolveResult(
         x=x, w=res.w, status=status, message=message, mvps=mvps, lofi_mvps=lofi_mvps,
         emvps=emvps, applications=run.A.applications, app_cost=app_cost,

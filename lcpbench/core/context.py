@@ -31,7 +31,7 @@ from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, Operator, all_finite, apply_uncounted
-from lcpbench.core.probes import Accuracy, measure_accuracy, safe_norm
+from lcpbench.core.probes import Accuracy, measure_accuracy
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
@@ -95,6 +95,15 @@ class Budget:
             raise ValueError(f"budget max_seconds must be > 0 or None, got {self.max_seconds!r}")
         if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
             raise ValueError(f"budget max_iter must be an integer >= 1, got {self.max_iter!r}")
+
+
+def _column_norms(X: np.ndarray) -> np.ndarray:
+    """The 2-norms of the columns of ``X`` without overflow (each scaled by its largest
+    entry); 0 for a zero column, inf or nan for a column with one."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        m = np.max(np.abs(X), axis=0) if X.shape[0] else np.zeros(X.shape[1])
+        scale = np.where((m > 0) & np.isfinite(m), m, 1.0)
+        return np.where(np.isfinite(m), scale * np.linalg.norm(X / scale, axis=0), m)
 
 
 class Monitor:
@@ -199,8 +208,11 @@ class SolverContext:
         self._unverified: list[tuple[dict, np.ndarray]] = []
         self._accuracy: Optional[Accuracy] = None
         #: Largest ratio ||w - b|| / ||x|| and ||w_k - w_j|| / ||x_k - x_j|| over the
-        #: reported iterates: a lower bound on ||A|| for free (the solvers' own w).
-        self.norm_A = 0.0
+        #: reported iterates whose ratios were taken (:attr:`norm_A`), the iterates still
+        #: to be taken, and the last one taken (for its difference with the next).
+        self._norm_A = 0.0
+        self._norm_pending: list[tuple[np.ndarray, np.ndarray]] = []
+        self._norm_tail: Optional[tuple[np.ndarray, np.ndarray]] = None
         self._t0: Optional[float] = None
         self._threshold = stop.threshold(lcp.b)
         self.accuracy_floor = accuracy_floor(lcp)
@@ -334,7 +346,7 @@ class SolverContext:
         e_rel = kkt_rel(e_abs, self._prev_kkt)
         verified = float("nan")
         if self.monitor.verify and finite and self.monitor.callback is not None:
-            verified = kkt_abs(x, apply_uncounted(self.A, x) + self.b)    # the callback's row
+            verified = kkt_abs(x, apply_uncounted(self.A, x, history=True) + self.b)
         lofi = sum(op.count for op in self.low.values())
         row = {"iter": it, "mvps": self.A.count, "lofi_mvps": lofi,
                "emvps": self.lcp.emvps(), "kkt_abs": e_abs, "kkt_rel": e_rel,
@@ -344,17 +356,11 @@ class SolverContext:
             self.monitor.record_extra(row, extra)
         self.monitor.rows.append(row)
         if finite:
-            # overflow-safe: a warm start of 1e300 must not turn the estimate into inf or nan
-            with np.errstate(over="ignore", invalid="ignore"):
-                nx = safe_norm(x)
-                if nx > 0.0:
-                    self._raise_norm_A(safe_norm(w - self.b) / nx)
-                if self._last is not None:
-                    dx = safe_norm(x - self._last[0])
-                    if dx > 0.0:
-                        self._raise_norm_A(safe_norm(w - self._last[1]) / dx)
             self._prev, self._last = self._last, (x.copy(), w.copy())
             self._recent.append(self._last)
+            self._norm_pending.append(self._last)       # its ratios are taken in a batch
+            if len(self._norm_pending) * 2 * self.n >= WINDOW_FLOATS:
+                self._take_norm_ratios()
             if self.monitor.verify and self.monitor.callback is None:
                 self._unverified.append((row, self._last[0]))
                 if len(self._unverified) * self.n >= WINDOW_FLOATS:
@@ -428,14 +434,49 @@ class SolverContext:
         rows, xs = zip(*self._unverified)
         self._unverified = []
         X = np.column_stack(xs)
-        W = apply_uncounted(self.A, X) + self.b[:, None]
+        W = apply_uncounted(self.A, X, history=True) + self.b[:, None]
         for row, e in zip(rows, np.linalg.norm(np.minimum(X, W), axis=0)):
             row["kkt_abs_verified"] = float(e)
         self.monitor.seconds += time.perf_counter() - t0
 
-    def _raise_norm_A(self, ratio: float) -> None:
-        if np.isfinite(ratio):
-            self.norm_A = max(self.norm_A, ratio)
+    @property
+    def norm_A(self) -> float:
+        """A lower bound on ``||A||`` for free: the largest ratio ``||w - b|| / ||x||`` and
+        ``||w_k - w_j|| / ||x_k - x_j||`` (consecutive finite iterates) over the reported
+        iterates, with the solvers' own ``w`` (0 before any ratio exists)."""
+        self._take_norm_ratios()
+        return self._norm_A
+
+    def _take_norm_ratios(self) -> None:
+        """Fold the ratios of the iterates reported since the last call into :attr:`norm_A`.
+
+        One pass over the columns of the batch instead of four norms per iterate;
+        overflow-safe (each column scaled by its largest entry), so a warm start of
+        1e300 does not turn the estimate into inf or nan.
+        """
+        pending = self._norm_pending
+        if not pending:
+            return
+        self._norm_pending = []
+        X = np.column_stack([x for x, _ in pending])
+        W = np.column_stack([w for _, w in pending])
+        with np.errstate(all="ignore"):
+            r = self._ratios(X, W)
+        self._norm_tail = pending[-1]
+        r = r[np.isfinite(r)]
+        if r.size:
+            self._norm_A = max(self._norm_A, float(r.max()))
+
+    def _ratios(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
+        """The ratios of the iterates ``X`` (columns, with their ``W``), and of their
+        differences with the one before them."""
+        ratios = [_column_norms(W - self.b[:, None]) / _column_norms(X)]
+        first = (self._norm_tail,) if self._norm_tail is not None else ()
+        if X.shape[1] + len(first) > 1:
+            Xs = np.column_stack([x for x, _ in first] + [X]) if first else X
+            Ws = np.column_stack([w for _, w in first] + [W]) if first else W
+            ratios.append(_column_norms(np.diff(Ws, axis=1)) / _column_norms(np.diff(Xs, axis=1)))
+        return np.concatenate(ratios)
 
     @property
     def iterations(self) -> int:

@@ -27,7 +27,6 @@ application.  See :meth:`Operator.application_cost` for the application-weighted
 from __future__ import annotations
 
 import contextlib
-import math
 import time
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Optional, Union
@@ -217,6 +216,10 @@ class Operator(LinearOperator):
         #: (verification, accuracy probes, cost timing, ...) and the counted ones it adds
         #: itself (confirmations, cost calibration), in columns.
         self.framework_products = 0
+        #: Uncounted products of the verified history (the residual of every iterate, for
+        #: the convergence curves), in columns: optional (``verify_history=False``), and
+        #: kept apart from :attr:`framework_products`, which the answer needs.
+        self.history_products = 0
         self._guard: Optional[Callable[[Operator, int], None]] = None
         #: The largest machine epsilon of a product's output dtype narrower than float64
         #: (float32: 1.2e-7), 0 while every product came back in float64.
@@ -381,6 +384,17 @@ class Operator(LinearOperator):
             return None
         return self._last[1].copy() if np.array_equal(self._last[0], x) else None
 
+    def __matmul__(self, other):
+        # the products of a solve: a float64 vector or block goes straight to the count,
+        # without scipy's general dispatch (scalars, other operators) in front of it
+        if type(other) is np.ndarray and other.dtype == np.float64 and other.ndim in (1, 2) \
+                and other.shape[0] == self.shape[1]:
+            return self._apply(other)
+        return super().__matmul__(other)
+
+    def dot(self, x):
+        return self.__matmul__(x)
+
     def _matvec(self, x):
         x = np.asarray(x, dtype=np.float64)
         return self._apply(x.reshape(-1)).reshape(x.shape)
@@ -492,15 +506,8 @@ class Operator(LinearOperator):
 
 
 def all_finite(v: np.ndarray) -> bool:
-    """True when every entry of ``v`` is finite.
-
-    The largest and the smallest entry settle it (a NaN propagates into both, an
-    infinite entry is one of them) at a fraction of the cost of the element-wise
-    test, and without floating-point warnings.
-    """
-    if v.size == 0:
-        return True
-    return math.isfinite(float(v.max())) and math.isfinite(float(v.min()))
+    """True when every entry of ``v`` is finite (no floating-point warnings)."""
+    return bool(np.isfinite(v).all())
 
 
 def _checked_apply(op: Operator, X: np.ndarray) -> np.ndarray:
@@ -540,15 +547,20 @@ def _raw_apply(impl, X: np.ndarray) -> np.ndarray:
     return np.array(impl.matmat(X))
 
 
-def apply_uncounted(op: Operator, X: np.ndarray) -> np.ndarray:
+def apply_uncounted(op: Operator, X: np.ndarray, *, history: bool = False) -> np.ndarray:
     """Apply ``op`` without counting or timing: for the framework's verification only.
 
     Solvers must never call this; the test-suite checks that no solver module
-    imports it. Each column is tallied in ``op.framework_products``. Raises
+    imports it. Each column is tallied in ``op.framework_products``, or in
+    ``op.history_products`` for the verified history (``history=True``). Raises
     :class:`OperatorError` naming the operator when its code fails.
     """
     X = np.asarray(X, dtype=np.float64)
-    op.framework_products += 1 if X.ndim == 1 else int(X.shape[1])
+    k = 1 if X.ndim == 1 else int(X.shape[1])
+    if history:
+        op.history_products += k
+    else:
+        op.framework_products += k
     return _checked_apply(op, X)
 
 

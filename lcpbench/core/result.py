@@ -111,10 +111,12 @@ class SolveResult:
     framework_mvps : int
         Products the framework made at the operators beside the solver's: the
         verification, accuracy probes, cost timing and calibration, the
-        confirmation of a claim, the evidence of infeasibility, the verified
-        history, a dense copy of a matrix-free operator (in columns). The counted
-        ones among them (a confirmation, a calibration) are in ``mvps`` too
-        (``info['confirmation_mvps']``, ``info['infeasibility_mvps']``).
+        confirmation of a claim, the evidence of infeasibility, a dense copy of a
+        matrix-free operator (in columns). The counted ones among them (a
+        confirmation, a calibration) are in ``mvps`` too
+        (``info['confirmation_mvps']``, ``info['infeasibility_mvps']``). The
+        verified history (one uncounted product per iterate, in block products;
+        optional, ``verify_history``) is apart: ``info['history_mvps']``.
     iterations : int
         Iterates reported to the monitor, minus one (the initial point).
     time_s : float
