@@ -135,8 +135,8 @@ class LemkeParams(CheckedParams):
         ``max(20, n)``: a recomputation costs about ``2 n^3``, so every ``n``
         pivots it costs what the pivots themselves cost, ``O(n^2)`` each; every 20
         pivots it made lcpbench's Lemke several times slower than the pivots alone
-        at n = 200). The final solution is recomputed from the final basis by a
-        direct solve in any case.
+        at n = 200). The final solution is recomputed from the final basis in any
+        case (refined to rounding level, or by a direct solve).
     """
 
     max_pivots: Annotated[int, Bounds(ge=0)] = 0
@@ -208,8 +208,10 @@ def lemke(ctx: SolverContext, p: LemkeParams) -> SolveResult:
     solution: the solve claims ``infeasible`` and offers the ray's ``z`` part, which
     the framework must confirm (rounding in the pivots can end on a ray of a solvable
     problem; the claim is then returned as ``stagnated``). At termination the solution
-    is recomputed by a direct solve with the final basis (removing the drift of
-    the updated inverse; least squares when that basis is singular), then ``w = A x + b`` costs one counted MVP. The pivots and the final
+    is recomputed with the final basis, removing the drift of the updated inverse:
+    the inverse's solution refined until its componentwise backward error is at
+    rounding level (``n eps``), else a direct solve with the basis columns, least
+    squares when that basis is singular; then ``w = A x + b`` costs one counted MVP. The pivots and the final
     solution run as one compiled call (:func:`lcpbench.solvers.dense_kernels.lemke_solve`),
     so the Python work per solve is a few calls. ``info``: ``pivots``.
     """

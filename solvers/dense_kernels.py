@@ -2,10 +2,12 @@
 a whole Lemke solve (pivots, refactorisations of the basis inverse, the final solve).
 
 Both are numba kernels (numba is already a dependency of the boundary-integral backend)
-doing the arithmetic of the loops they replace: the dot products, the pivot column
-``B^-1 col`` and the final LU solve go through the same BLAS and LAPACK calls numpy
-makes, and the pivot update is the same element-wise ``a - d_i b_j``; only the rounding
-scale of the ratio test is summed in any order (``fastmath``). What they save is
+doing the arithmetic of the loops they replace: the dot products (the pivot column
+``B^-1 col`` among them) go through the same BLAS calls numpy makes and the pivot
+update is the same element-wise ``a - d_i b_j``; only the rounding scale of the ratio
+test is summed in any order (``fastmath``); the final basic solution
+is the updated inverse's refined to rounding level, with an LU solve (LAPACK, as
+numpy's) only when refinement does not get there. What they save is
 Python's cost per row (PGS), per pivot and per solve (Lemke), which made lcpbench's
 Lemke about 90 times slower than quantecon's compiled ``lcp_lemke`` on the shipped sets
 (docs/benchmarks.md, "The framework's cost around a solve, and Lemke").
@@ -21,6 +23,10 @@ __all__ = ["pgs_sweep", "lemke_run", "lemke_solve", "basis_matrix",
 
 #: What :func:`lemke_run` stopped on.
 Z0_LEFT, RAY, ZERO_PIVOT, PIVOT_LIMIT, REFACTOR_DUE = 0, 1, 2, 3, 4
+
+
+#: Refinement steps of the final basic solution before a fresh factorisation.
+REFINEMENTS = 3
 
 
 @njit(cache=True)
@@ -39,8 +45,8 @@ def _pivot_column(M: np.ndarray, Binv: np.ndarray, k: int, col: np.ndarray,
     """``d = B^-1 col`` for column ``k`` of the tableau ``[I, -M, -e]``; returns its
     rounding scale ``max_i sum_j |B^-1_ij| |col_j|``.
 
-    One pass over ``B^-1`` makes both (summed in any order, ``fastmath``, so that the
-    sums vectorise: a sum's rounding is that of any BLAS). A column of the identity
+    The scale is summed in any order (``fastmath``, so that the sums vectorise);
+    ``d`` is BLAS's, as numpy's, since a degenerate path follows its rounding. A column of the identity
     selects a column of ``B^-1`` and ``-e`` sums its rows.
     """
     n = M.shape[0]
@@ -62,7 +68,7 @@ def _pivot_column(M: np.ndarray, Binv: np.ndarray, k: int, col: np.ndarray,
         for j in range(n):
             a += abs(Binv[i, j]) * abs(col[j])
         scale = max(scale, a)
-    d[:] = np.dot(Binv, col)
+    d[:] = np.dot(Binv, col)      # BLAS, as numpy: a degenerate path follows its rounding
     return scale
 
 
@@ -94,12 +100,24 @@ def _lex_min_ratio(rhs: np.ndarray, Binv: np.ndarray, d: np.ndarray, scale: floa
     ties within ``1e-12`` are broken on the rows of ``B^-1`` divided by the pivot entries.
     """
     n = d.shape[0]
-    cand = np.flatnonzero(d > tol * scale)
-    if cand.size == 0:
+    cut = tol * scale
+    best = np.inf
+    first = -1
+    for i in range(n):                     # the minimum ratio, without temporaries
+        if d[i] > cut:
+            r = rhs[i] / d[i]
+            if r < best:
+                best, first = r, i
+    if first < 0:
         return -1
-    ratios = rhs[cand] / d[cand]
-    best = ratios.min()
-    near = cand[ratios <= best + 1e-12 * max(1.0, abs(best))]
+    bound = best + 1e-12 * max(1.0, abs(best))
+    ties = 0
+    for i in range(n):
+        if d[i] > cut and rhs[i] / d[i] <= bound:
+            ties += 1
+    if ties == 1:
+        return first
+    near = np.array([i for i in range(n) if d[i] > cut and rhs[i] / d[i] <= bound])
     j = 0
     while near.size > 1 and j < n:
         vals = Binv[near, j] / d[near]
@@ -181,6 +199,64 @@ def _refactor(M: np.ndarray, q: np.ndarray, basis: np.ndarray, Binv: np.ndarray,
 
 
 @njit(cache=True)
+def _basic_residual(M: np.ndarray, q: np.ndarray, basis: np.ndarray, xb: np.ndarray,
+                    r: np.ndarray, size: np.ndarray) -> None:
+    """``r = q - B xb`` for the basis columns ``B`` of ``[I, -M, -e]``, and
+    ``size = |q| + |B| |xb|`` (the scale of each row's rounding), in place."""
+    n = M.shape[0]
+    for i in range(n):
+        r[i] = q[i]
+        size[i] = abs(q[i])
+    for c in range(n):
+        k = basis[c]
+        v = xb[c]
+        if v == 0.0:
+            continue
+        if k < n:
+            r[k] -= v
+            size[k] += abs(v)
+        elif k < 2 * n:
+            for i in range(n):
+                r[i] += M[i, k - n] * v
+                size[i] += abs(M[i, k - n] * v)
+        else:
+            for i in range(n):
+                r[i] += v
+                size[i] += abs(v)
+
+
+@njit(cache=True)
+def _refined_basic_solution(M: np.ndarray, q: np.ndarray, basis: np.ndarray,
+                            Binv: np.ndarray) -> np.ndarray:
+    """The basic solution ``B^-1 q`` from the updated inverse, refined to rounding.
+
+    ``xb = B^-1 q``, then at most :data:`REFINEMENTS` steps ``xb += B^-1 (q - B xb)``
+    until every row's residual is within ``n eps`` of its scale ``(|q| + |B| |xb|)_i``
+    (a componentwise backward error as small as an LU solve's). Each step is
+    ``O(n^2)``, against ``n^3 / 3`` for a fresh factorisation. Returns an empty array
+    when the drift of the inverse is too large for that (the caller factorises).
+    """
+    n = M.shape[0]
+    xb = np.dot(Binv, q)
+    r = np.empty(n)
+    size = np.empty(n)
+    tol = n * np.finfo(np.float64).eps
+    for _ in range(REFINEMENTS + 1):
+        if not np.all(np.isfinite(xb)):
+            break
+        _basic_residual(M, q, basis, xb, r, size)
+        ok = True
+        for i in range(n):
+            if abs(r[i]) > tol * size[i]:
+                ok = False
+                break
+        if ok:
+            return xb
+        xb = xb + np.dot(Binv, r)
+    return np.empty(0)
+
+
+@njit(cache=True)
 def lemke_solve(M: np.ndarray, q: np.ndarray, max_pivots: int, refactor_every: int,
                 pivot_tol: float
                 ) -> tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray, bool, int]:
@@ -189,9 +265,10 @@ def lemke_solve(M: np.ndarray, q: np.ndarray, max_pivots: int, refactor_every: i
     Scheme I from the basis of every ``w``: ``z0`` enters, the most negative ``q_i``
     leaves, then :func:`lemke_run`'s pivots, with the basis inverse recomputed from
     the basis columns every ``refactor_every`` pivots (:func:`_refactor`), and at the
-    end the basic solution by a direct solve with the final basis columns (LAPACK's LU,
-    as numpy's ``solve``: no drift of the updated inverse; about ``n^3 / 3`` flops, a
-    few pivots' worth). Returns ``(code, pivots, entering, basis, d, x, solved,
+    end the basic solution with the final basis: the updated inverse's, refined to a
+    backward error at rounding level (:func:`_refined_basic_solution`), else a direct
+    solve with the basis columns (LAPACK's LU, as numpy's ``solve``), so the drift of
+    the updated inverse never reaches ``x``. Returns ``(code, pivots, entering, basis, d, x, solved,
     singular_refactors)``: ``x`` is the ``z`` part of the basic solution clipped at 0
     (from the updated right-hand side when the solve gives non-finite values or, with
     ``solved`` False, when the final basis is singular: the caller then tries least
@@ -212,10 +289,12 @@ def lemke_solve(M: np.ndarray, q: np.ndarray, max_pivots: int, refactor_every: i
         if not _refactor(M, q, basis, Binv, rhs):
             singular += 1
     solved = True
-    try:
-        xb = np.linalg.solve(basis_matrix(M, basis), q)
-    except Exception:  # noqa: BLE001 - numba raises a plain LinAlgError it cannot name
-        solved, xb = False, rhs
+    xb = _refined_basic_solution(M, q, basis, Binv)
+    if xb.size == 0:
+        try:
+            xb = np.linalg.solve(basis_matrix(M, basis), q)
+        except Exception:  # noqa: BLE001 - numba raises a plain LinAlgError it cannot name
+            solved, xb = False, rhs
     if not np.all(np.isfinite(xb)):
         xb = rhs                      # the updated right-hand side, drift and all
     x = np.zeros(n)
