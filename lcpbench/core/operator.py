@@ -216,10 +216,7 @@ class Operator(LinearOperator):
         #: (verification, accuracy probes, cost timing, ...) and the counted ones it adds
         #: itself (confirmations, cost calibration), in columns.
         self.framework_products = 0
-        #: Uncounted products of the verified history (the residual of every iterate, for
-        #: the convergence curves), in columns: optional (``verify_history=False``), and
-        #: kept apart from :attr:`framework_products`, which the answer needs.
-        self.history_products = 0
+        self.history_products = 0   #: uncounted columns of the verified history, kept apart
         self._guard: Optional[Callable[[Operator, int], None]] = None
         #: The largest machine epsilon of a product's output dtype narrower than float64
         #: (float32: 1.2e-7), 0 while every product came back in float64.
