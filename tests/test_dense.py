@@ -139,3 +139,20 @@ def test_pgs_compiled_sweep_is_gauss_seidel():
         want[i] = max(0.0, want[i] - 1.3 / A[i, i] * (A[i] @ want + b[i]))
     pgs_sweep(A, b, x, np.arange(12), 1.3 / np.diag(A))
     np.testing.assert_allclose(x, want, rtol=1e-14, atol=1e-15)
+
+
+def test_lemke_final_solution_is_refined_or_handed_to_a_factorisation():
+    from lcpbench.solvers.dense_kernels import _refined_basic_solution, basis_matrix
+    rng = np.random.default_rng(3)
+    n = 6
+    M = rng.standard_normal((n, n))
+    M = M @ M.T + n * np.eye(n)
+    q = rng.standard_normal(n)
+    basis = np.array([0, n + 1, 2, n + 3, 2 * n, 5])       # w, z and z0 columns
+    B = basis_matrix(M, basis)
+    exact = np.linalg.solve(B, q)
+    drifted = np.linalg.inv(B) * (1 + 1e-6 * rng.standard_normal((n, n)))
+    np.testing.assert_allclose(_refined_basic_solution(M, q, basis, drifted), exact,
+                               rtol=1e-12, atol=1e-14)
+    # an inverse too far off for refinement: the caller must factorise
+    assert _refined_basic_solution(M, q, basis, np.zeros((n, n))).size == 0

@@ -31,7 +31,7 @@ from scipy.sparse.linalg import LinearOperator, eigsh
 
 from lcpbench.core.lcp import LCP
 from lcpbench.core.operator import BudgetExhausted, Operator, all_finite, apply_uncounted
-from lcpbench.core.probes import Accuracy, measure_accuracy
+from lcpbench.core.probes import Accuracy, measure_accuracy, safe_column_norms
 from lcpbench.core.residuals import StopRule, kkt_abs, kkt_rel, objective
 from lcpbench.core.result import HISTORY_COLUMNS, SolveResult, Status
 
@@ -95,15 +95,6 @@ class Budget:
             raise ValueError(f"budget max_seconds must be > 0 or None, got {self.max_seconds!r}")
         if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
             raise ValueError(f"budget max_iter must be an integer >= 1, got {self.max_iter!r}")
-
-
-def _column_norms(X: np.ndarray) -> np.ndarray:
-    """The 2-norms of the columns of ``X`` without overflow (each scaled by its largest
-    entry); 0 for a zero column, inf or nan for a column with one."""
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        m = np.max(np.abs(X), axis=0) if X.shape[0] else np.zeros(X.shape[1])
-        scale = np.where((m > 0) & np.isfinite(m), m, 1.0)
-        return np.where(np.isfinite(m), scale * np.linalg.norm(X / scale, axis=0), m)
 
 
 class Monitor:
@@ -470,12 +461,12 @@ class SolverContext:
     def _ratios(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
         """The ratios of the iterates ``X`` (columns, with their ``W``), and of their
         differences with the one before them."""
-        ratios = [_column_norms(W - self.b[:, None]) / _column_norms(X)]
+        ratios = [safe_column_norms(W - self.b[:, None]) / safe_column_norms(X)]
         first = (self._norm_tail,) if self._norm_tail is not None else ()
         if X.shape[1] + len(first) > 1:
             Xs = np.column_stack([x for x, _ in first] + [X]) if first else X
             Ws = np.column_stack([w for _, w in first] + [W]) if first else W
-            ratios.append(_column_norms(np.diff(Ws, axis=1)) / _column_norms(np.diff(Xs, axis=1)))
+            ratios.append(safe_column_norms(np.diff(Ws, axis=1)) / safe_column_norms(np.diff(Xs, axis=1)))
         return np.concatenate(ratios)
 
     @property

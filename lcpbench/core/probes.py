@@ -14,7 +14,7 @@ import numpy as np
 
 from lcpbench.core.operator import Operator, apply_uncounted
 
-__all__ = ["measure_cost", "Accuracy", "measure_accuracy", "safe_norm", "ACCURACY_PROBES"]
+__all__ = ["measure_cost", "Accuracy", "measure_accuracy", "safe_norm", "safe_column_norms", "ACCURACY_PROBES"]
 
 
 def measure_cost(op: Operator, min_seconds: float = 0.02, max_reps: int = 50,
@@ -73,10 +73,16 @@ def safe_norm(v: np.ndarray) -> float:
         sq = float(np.dot(v, v))
     if _SQUARE_SAFE_LOW < sq < _SQUARE_SAFE_HIGH:
         return float(np.sqrt(sq))
-    m = float(np.max(np.abs(v)))
-    if m == 0.0 or not np.isfinite(m):
-        return m
-    return m * float(np.linalg.norm(v / m))
+    return float(safe_column_norms(v[:, None])[0])
+
+
+def safe_column_norms(X: np.ndarray) -> np.ndarray:
+    """The 2-norms of the columns of ``X`` without overflow or underflow (each column
+    scaled by its largest entry); 0 for a zero column, inf or nan for a column with one."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+        m = np.max(np.abs(X), axis=0) if X.shape[0] else np.zeros(X.shape[1])
+        scale = np.where((m > 0) & np.isfinite(m), m, 1.0)
+        return np.where(np.isfinite(m) & (m > 0), scale * np.linalg.norm(X / scale, axis=0), m)
 
 
 #: A probe defect (see :func:`measure_accuracy`) at or below ``EXACT_ULPS eps n`` (capped at
